@@ -1,0 +1,65 @@
+"""Small SO(3)/vector helpers used by the contact models and samplers (single item; `vmap` to batch)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+_EPS = 1e-12
+
+
+def normalize(v: jax.Array, eps: float = _EPS) -> jax.Array:
+  """Unit vector along ``v`` (..., 3); a zero vector stays zero."""
+  n = jnp.linalg.norm(v, axis=-1, keepdims=True)
+  return v / jnp.maximum(n, eps)
+
+
+def tangent_basis(normal: jax.Array) -> tuple[jax.Array, jax.Array]:
+  """Orthonormal tangents (t1, t2) of a unit ``normal`` (3,), with t2 = normal x t1.
+
+  As in Dex-Net, t1 is the projection of the frame's x axis onto the tangent plane (the y axis when the
+  normal is within ~8 degrees of x), so the azimuth of a discretised friction cone is deterministic.
+  """
+  ex = jnp.array([1.0, 0.0, 0.0], normal.dtype)
+  ey = jnp.array([0.0, 1.0, 0.0], normal.dtype)
+  ref = jnp.where(jnp.abs(normal[0]) < 0.99, ex, ey)
+  t1 = normalize(ref - jnp.dot(ref, normal) * normal)
+  t2 = jnp.cross(normal, t1)
+  return t1, t2
+
+
+def so3_exp(omega: jax.Array) -> jax.Array:
+  """Rotation matrix (3, 3) of the rotation vector ``omega`` (3,), radians (Rodrigues)."""
+  theta2 = jnp.dot(omega, omega)
+  theta = jnp.sqrt(jnp.maximum(theta2, _EPS))
+  small = theta2 < 1e-8
+  a = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) / theta)
+  b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / jnp.maximum(theta2, _EPS))
+  k = jnp.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]], [-omega[1], omega[0], 0.0]])
+  return jnp.eye(3, dtype=omega.dtype) + a * k + b * (k @ k)
+
+
+def sample_unit_sphere(key: jax.Array) -> jax.Array:
+  """A direction (3,) uniform on the unit sphere."""
+  return normalize(jax.random.normal(key, (3,)))
+
+
+def sample_cone(key: jax.Array, axis: jax.Array, half_angle: float | jax.Array) -> jax.Array:
+  """A direction (3,) uniform (by solid angle) on the spherical cap within ``half_angle`` rad of ``axis``.
+
+  Exactly the distribution that rejection sampling from the uniform sphere gives, without a loop:
+  cos(angle) ~ U[cos(half_angle), 1] and azimuth ~ U[0, 2 pi).
+  """
+  k1, k2 = jax.random.split(key)
+  cos_t = jax.random.uniform(k1, (), minval=jnp.cos(half_angle), maxval=1.0)
+  sin_t = jnp.sqrt(jnp.maximum(1.0 - cos_t**2, 0.0))
+  phi = jax.random.uniform(k2, (), maxval=2.0 * jnp.pi)
+  axis = normalize(axis)
+  t1, t2 = tangent_basis(axis)
+  return cos_t * axis + sin_t * (jnp.cos(phi) * t1 + jnp.sin(phi) * t2)
+
+
+def perpendicular(v: jax.Array, angle: float | jax.Array = 0.0) -> jax.Array:
+  """A unit vector (3,) perpendicular to unit ``v``, rotated by ``angle`` rad about ``v`` from `tangent_basis`'s t1."""
+  t1, t2 = tangent_basis(v)
+  return jnp.cos(angle) * t1 + jnp.sin(angle) * t2

@@ -1,0 +1,19 @@
+"""Analytic grasp quality: wrench resistance, deterministic and robust (Monte-Carlo) quality."""
+
+from dexjax.quality.evaluate import GraspEvaluation, evaluate_grasps
+from dexjax.quality.grasp_quality import (FAILURE_REASONS, Conditions, GraspOutcome, QualityConfig,
+                                          external_wrench, parallel_jaw_quality, suction_quality)
+from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_SAMPLES, SUPERVISOR_THRESHOLD,
+                                   Perturbations, RobustQuality, nominal_conditions, parallel_jaw_perturbations,
+                                   perturb_parallel_jaw_grasp, perturb_suction_grasp, robust_parallel_jaw_quality,
+                                   robust_suction_quality, sample_conditions, suction_perturbations)
+from dexjax.quality.wrench import NNLSResult, lift_bounded_groups, nnls, resists, wrench_residual
+
+__all__ = [
+    "GraspEvaluation", "evaluate_grasps", "FAILURE_REASONS", "Conditions", "GraspOutcome", "QualityConfig",
+    "external_wrench", "parallel_jaw_quality", "suction_quality", "REWARD_SAMPLES", "REWARD_THRESHOLD",
+    "SUPERVISOR_SAMPLES", "SUPERVISOR_THRESHOLD", "Perturbations", "RobustQuality", "nominal_conditions",
+    "parallel_jaw_perturbations", "perturb_parallel_jaw_grasp", "perturb_suction_grasp",
+    "robust_parallel_jaw_quality", "robust_suction_quality", "sample_conditions", "suction_perturbations",
+    "NNLSResult", "lift_bounded_groups", "nnls", "resists", "wrench_residual",
+]

@@ -1,0 +1,130 @@
+"""Deterministic grasp quality: does one grasp resist one external wrench under given physical conditions?
+
+These functions evaluate a single grasp on a single object under a single draw of the uncertain quantities
+(`Conditions`); `dexjax.quality.robust` averages them over Monte-Carlo draws. Torques are taken about the
+object's centre of mass; the external wrench is gravity on the object's mass (acting at the centre of mass,
+so it has no torque) plus a disturbance wrench. Every torque row is multiplied by ``torque_scale`` (1/m), so
+the residual of the wrench-resistance problem is in newtons; see `dexjax.quality.wrench` for the exact
+threshold semantics.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from dexjax.contacts.parallel_jaw import close_jaws, in_friction_cone, soft_finger_wrenches
+from dexjax.contacts.suction import suction_seal, suction_wrenches
+from dexjax.geometry.object_model import ObjectModel
+from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
+from dexjax.grippers import STANDARD_GRAVITY, ParallelJawGripper, SuctionGripper
+from dexjax.quality.wrench import wrench_residual
+
+#: Names of the failure codes in `GraspOutcome.failure` (index = code).
+FAILURE_REASONS = ("none", "no_contact", "jaw_collision", "slip", "no_seal", "not_resisted")
+NONE, NO_CONTACT, JAW_COLLISION, SLIP, NO_SEAL, NOT_RESISTED = range(len(FAILURE_REASONS))
+
+
+@struct.dataclass
+class Conditions:
+  """One draw of the uncertain physical quantities of a grasp attempt.
+
+  Attributes:
+    mass: () object mass, kg.
+    friction: () Coulomb friction coefficient between gripper and object.
+    gravity: (3,) unit direction of gravity in the object frame.
+    disturbance: (6,) extra external wrench on the object (force N, torque N m about the centre of mass).
+  """
+
+  mass: jax.Array
+  friction: jax.Array
+  gravity: jax.Array
+  disturbance: jax.Array
+
+
+@struct.dataclass
+class QualityConfig:
+  """Numerical settings of the wrench-resistance test.
+
+  Attributes:
+    torque_scale: 1/m, multiplies torque rows so that residuals are in newtons (100: 1 N m counts as 100 N,
+      i.e. torques are measured as forces at a 1 cm lever).
+    tolerance: a grasp resists when the residual is at most this, newtons.
+    gravity_acceleration: m/s^2.
+  """
+
+  torque_scale: float = 100.0
+  tolerance: float = 1e-3
+  gravity_acceleration: float = STANDARD_GRAVITY
+
+
+@struct.dataclass
+class GraspOutcome:
+  """Result of one deterministic evaluation.
+
+  Attributes:
+    resists: () bool, the grasp holds the object against the external wrench.
+    residual: () float, newtons: unresisted wrench plus force-limit excess (inf when no wrench test ran).
+    failure: () int32 index into `FAILURE_REASONS` (0 when ``resists``).
+  """
+
+  resists: jax.Array
+  residual: jax.Array
+  failure: jax.Array
+
+
+def external_wrench(conditions: Conditions, config: QualityConfig) -> jax.Array:
+  """(6,) wrench on the object: gravity at the centre of mass plus the disturbance (N; N m)."""
+  gravity = conditions.mass * config.gravity_acceleration * conditions.gravity
+  return conditions.disturbance + jnp.concatenate([gravity, jnp.zeros(3, gravity.dtype)])
+
+
+def _scale_torques(wrench: jax.Array, torque_scale) -> jax.Array:
+  return jnp.concatenate([wrench[:3], torque_scale * wrench[3:]])
+
+
+def _outcome(residual, checks, config: QualityConfig) -> GraspOutcome:
+  """Combines ordered (failed, code) checks with the residual test into a `GraspOutcome`."""
+  failure = jnp.where(residual <= config.tolerance, NONE, NOT_RESISTED)
+  for failed, code in reversed(checks):
+    failure = jnp.where(failed, code, failure)
+  failure = failure.astype(jnp.int32)
+  return GraspOutcome(resists=failure == NONE, residual=residual, failure=failure)
+
+
+def parallel_jaw_quality(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJawGripper,
+                         conditions: Conditions, config: QualityConfig = QualityConfig()) -> GraspOutcome:
+  """Soft-finger wrench resistance of a parallel-jaw grasp (object frame).
+
+  Fails with ``no_contact`` when a jaw closes without meeting the object, ``jaw_collision`` when the open
+  jaws already overlap it, ``slip`` when a line of action leaves its friction cone, and ``not_resisted`` when
+  no admissible finger forces (within friction and the per-finger force limit) balance the external wrench.
+  """
+  contacts = close_jaws(model, grasp, gripper)
+  in_cone = jax.vmap(in_friction_cone, in_axes=(0, 0, None))(contacts.normals, contacts.directions,
+                                                             conditions.friction)
+  wrenches, groups, limits = soft_finger_wrenches(contacts, model.center_of_mass, conditions.friction, gripper,
+                                                  config.torque_scale)
+  target = -_scale_torques(external_wrench(conditions, config), config.torque_scale)
+  residual = wrench_residual(wrenches, target, groups, limits)
+  checks = [(jnp.any(contacts.collision), JAW_COLLISION), (~jnp.all(contacts.found), NO_CONTACT),
+            (~jnp.all(in_cone), SLIP)]
+  return _outcome(residual, checks, config)
+
+
+def suction_quality(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGripper, conditions: Conditions,
+                    config: QualityConfig = QualityConfig()) -> GraspOutcome:
+  """Seal and suction-ring wrench resistance of a suction grasp (object frame).
+
+  Fails with ``no_contact`` when the approach ray misses the object near the grasp centre (or something is in
+  the way), ``no_seal`` when the spring model does not seal, and ``not_resisted`` when no admissible lip
+  forces and torques (vacuum, friction, torsional friction, elastic limit) balance the external wrench.
+  """
+  seal = suction_seal(model, grasp, gripper)
+  wrenches, groups, limits, vacuum = suction_wrenches(seal.contact, seal.approach, model.center_of_mass,
+                                                      conditions.friction, gripper, config.torque_scale)
+  target = vacuum - _scale_torques(external_wrench(conditions, config), config.torque_scale)
+  residual = wrench_residual(wrenches, target, groups, limits)
+  checks = [(~seal.contact_found, NO_CONTACT), (~seal.sealed, NO_SEAL)]
+  return _outcome(residual, checks, config)

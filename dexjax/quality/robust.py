@@ -1,0 +1,167 @@
+"""Robust (Monte-Carlo) grasp quality: the Dex-Net 4.0 reward model.
+
+The robust quality of a grasp is the probability that it resists gravity plus a random disturbance wrench,
+estimated over ``num_samples`` i.i.d. draws of (seed, "Reward Distribution" and "Data Collection Policy"):
+
+* object mass ~ Gamma with mean 0.25 kg and variance 0.05 kg^2 (shape 1.25, scale 0.2 kg);
+* gripper position ~ centre + N(0, sigma^2 I): sigma = 2.5 mm (parallel jaw), 0.1 mm (suction); an optional
+  rotation noise (off by default: the seed perturbs position only);
+* friction ~ N(0.8, 0.01) (variance, i.e. std 0.1) truncated to [0, 1] (a true truncated normal);
+* gravity direction uniform on the sphere (parallel jaw) or uniform within pi/6 of the approach axis (suction;
+  the exact distribution rejection sampling would give), or about a fixed axis (world gravity in a heap);
+* disturbance wrench ~ N(0, 0.01^2 I) (newtons and newton metres).
+
+Draws are a pure function of the key, so one key gives one answer; batch grasps with `jax.vmap`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from dexjax.geometry.object_model import ObjectModel
+from dexjax.geometry.transforms import normalize, sample_cone, so3_exp
+from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
+from dexjax.grippers import ParallelJawGripper, SuctionGripper
+from dexjax.quality.grasp_quality import (Conditions, GraspOutcome, QualityConfig, parallel_jaw_quality,
+                                          suction_quality)
+
+#: Dex-Net 4.0 sample counts and probability thresholds.
+REWARD_SAMPLES, SUPERVISOR_SAMPLES = 10, 25
+REWARD_THRESHOLD, SUPERVISOR_THRESHOLD = 0.5, 0.75
+
+
+@struct.dataclass
+class Perturbations:
+  """The distribution of uncertain quantities (defaults: Dex-Net 4.0; position noise set per gripper).
+
+  Attributes:
+    mass_mean: kg.
+    mass_variance: kg^2.
+    friction_mean: mean of the (pre-truncation) normal.
+    friction_variance: variance of the (pre-truncation) normal.
+    friction_range: (low, high) truncation interval.
+    position_sigma: std of each coordinate of the gripper position noise, metres.
+    rotation_sigma: std of each coordinate of the gripper rotation-vector noise, radians.
+    disturbance_sigma: std of each of the 6 disturbance-wrench coordinates (N; N m).
+    gravity_cone_angle: gravity is uniform within this angle (rad) of ``gravity_axis``; pi = whole sphere.
+    gravity_axis: (3,) axis of the gravity cone in the object frame, or None for the grasp's approach.
+    num_samples: static number of Monte-Carlo draws M.
+  """
+
+  mass_mean: float = 0.25
+  mass_variance: float = 0.05
+  friction_mean: float = 0.8
+  friction_variance: float = 0.01
+  friction_range: tuple[float, float] = (0.0, 1.0)
+  position_sigma: float = 0.0025
+  rotation_sigma: float = 0.0
+  disturbance_sigma: float = 0.01
+  gravity_cone_angle: float = math.pi
+  gravity_axis: jax.Array | None = None
+  num_samples: int = struct.field(pytree_node=False, default=REWARD_SAMPLES)
+
+
+def parallel_jaw_perturbations(num_samples: int = REWARD_SAMPLES, **overrides) -> Perturbations:
+  """Dex-Net 4.0 parallel-jaw perturbations: 2.5 mm position noise, gravity uniform on the sphere."""
+  return Perturbations(position_sigma=0.0025, gravity_cone_angle=math.pi, num_samples=num_samples,
+                       **overrides)
+
+
+def suction_perturbations(num_samples: int = REWARD_SAMPLES, **overrides) -> Perturbations:
+  """Dex-Net 4.0 suction perturbations: 0.1 mm position noise, gravity within pi/6 of the approach axis."""
+  return Perturbations(position_sigma=0.0001, gravity_cone_angle=math.pi / 6.0, num_samples=num_samples,
+                       **overrides)
+
+
+@struct.dataclass
+class RobustQuality:
+  """Monte-Carlo estimate for one grasp.
+
+  Attributes:
+    probability: () fraction of draws in which the grasp resists.
+    outcomes: `GraspOutcome` with a leading axis of ``num_samples`` (the individual draws).
+  """
+
+  probability: jax.Array
+  outcomes: GraspOutcome
+
+
+def sample_conditions(key: jax.Array, perturbations: Perturbations, approach: jax.Array) -> Conditions:
+  """One draw of mass, friction, gravity direction and disturbance wrench."""
+  k_mass, k_mu, k_grav, k_dist = jax.random.split(key, 4)
+  p = perturbations
+  shape = p.mass_mean**2 / p.mass_variance
+  mass = jax.random.gamma(k_mass, shape) * (p.mass_variance / p.mass_mean)
+  std = jnp.sqrt(p.friction_variance)
+  low, high = p.friction_range
+  friction = p.friction_mean + std * jax.random.truncated_normal(k_mu, (low - p.friction_mean) / std,
+                                                                 (high - p.friction_mean) / std)
+  axis = approach if p.gravity_axis is None else p.gravity_axis
+  gravity = sample_cone(k_grav, axis, p.gravity_cone_angle)
+  disturbance = p.disturbance_sigma * jax.random.normal(k_dist, (6,))
+  return Conditions(mass=mass, friction=friction, gravity=gravity, disturbance=disturbance)
+
+
+def nominal_conditions(perturbations: Perturbations, approach: jax.Array) -> Conditions:
+  """The unperturbed conditions: mean mass and friction, gravity along the cone axis (default: the approach,
+  the object hanging below the gripper), no disturbance."""
+  p = perturbations
+  axis = approach if p.gravity_axis is None else p.gravity_axis
+  return Conditions(mass=jnp.asarray(p.mass_mean, jnp.float32), friction=jnp.asarray(p.friction_mean, jnp.float32),
+                    gravity=normalize(jnp.asarray(axis, jnp.float32)), disturbance=jnp.zeros(6, jnp.float32))
+
+
+def _perturb_pose(key, perturbations: Perturbations, center, directions):
+  """Gripper position noise and a common rotation of the grasp's direction vectors (k, 3)."""
+  k_pos, k_rot = jax.random.split(key)
+  center = center + perturbations.position_sigma * jax.random.normal(k_pos, (3,))
+  rot = so3_exp(perturbations.rotation_sigma * jax.random.normal(k_rot, (3,)))
+  return center, directions @ rot.T
+
+
+def perturb_parallel_jaw_grasp(key: jax.Array, grasp: ParallelJawGrasp,
+                               perturbations: Perturbations) -> ParallelJawGrasp:
+  """One draw of the gripper-pose noise applied to a parallel-jaw grasp."""
+  center, dirs = _perturb_pose(key, perturbations, grasp.center, jnp.stack([grasp.axis, grasp.approach]))
+  return grasp.replace(center=center, axis=dirs[0], approach=dirs[1])
+
+
+def perturb_suction_grasp(key: jax.Array, grasp: SuctionGrasp, perturbations: Perturbations) -> SuctionGrasp:
+  """One draw of the gripper-pose noise applied to a suction grasp."""
+  center, dirs = _perturb_pose(key, perturbations, grasp.center, grasp.approach[None])
+  return grasp.replace(center=center, approach=dirs[0])
+
+
+def _robust(key, grasp, perturbations, perturb, evaluate) -> RobustQuality:
+  keys = jax.random.split(key, perturbations.num_samples)
+
+  def one(k):
+    k_pose, k_cond = jax.random.split(k)
+    conditions = sample_conditions(k_cond, perturbations, normalize(grasp.approach))
+    return evaluate(perturb(k_pose, grasp, perturbations), conditions)
+
+  outcomes = jax.vmap(one)(keys)
+  return RobustQuality(probability=jnp.mean(outcomes.resists.astype(jnp.float32)), outcomes=outcomes)
+
+
+def robust_parallel_jaw_quality(key: jax.Array, model: ObjectModel, grasp: ParallelJawGrasp,
+                                gripper: ParallelJawGripper = ParallelJawGripper(),
+                                perturbations: Perturbations | None = None,
+                                config: QualityConfig = QualityConfig()) -> RobustQuality:
+  """Probability that a parallel-jaw grasp resists gravity plus a random disturbance (Dex-Net 4.0)."""
+  perturbations = parallel_jaw_perturbations() if perturbations is None else perturbations
+  evaluate = lambda g, c: parallel_jaw_quality(model, g, gripper, c, config)
+  return _robust(key, grasp, perturbations, perturb_parallel_jaw_grasp, evaluate)
+
+
+def robust_suction_quality(key: jax.Array, model: ObjectModel, grasp: SuctionGrasp,
+                           gripper: SuctionGripper = SuctionGripper(), perturbations: Perturbations | None = None,
+                           config: QualityConfig = QualityConfig()) -> RobustQuality:
+  """Probability that a suction grasp seals and resists gravity plus a random disturbance (Dex-Net 4.0)."""
+  perturbations = suction_perturbations() if perturbations is None else perturbations
+  evaluate = lambda g, c: suction_quality(model, g, gripper, c, config)
+  return _robust(key, grasp, perturbations, perturb_suction_grasp, evaluate)

@@ -1,0 +1,46 @@
+"""Shared fixtures: object models of the built-in shapes, built once per test session (small grids)."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
+
+GRID = 64  # small grids keep the suite fast; the library default is 100
+
+
+@pytest.fixture(scope="session")
+def cache_dir(tmp_path_factory):
+  return tmp_path_factory.mktemp("object_cache")
+
+
+def _model(name, cache_dir):
+  from dexjax.objects import load_object_model
+  return load_object_model(f"builtin:{name}", cache_dir=cache_dir, grid_size=GRID)
+
+
+@pytest.fixture(scope="session")
+def cube(cache_dir):
+  return _model("cube", cache_dir)
+
+
+@pytest.fixture(scope="session")
+def box(cache_dir):
+  return _model("box", cache_dir)
+
+
+@pytest.fixture(scope="session")
+def box_with_hole(cache_dir):
+  return _model("box_with_hole", cache_dir)
+
+
+@pytest.fixture(scope="session")
+def sphere(cache_dir):
+  return _model("sphere", cache_dir)
+
+
+@pytest.fixture(scope="session")
+def cylinder(cache_dir):
+  return _model("cylinder", cache_dir)

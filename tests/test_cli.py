@@ -1,0 +1,81 @@
+"""``python -m dexjax.quality``: sampling and evaluating on built-in objects, and clear errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from dexjax.quality.__main__ import main
+
+
+@pytest.fixture(autouse=True)
+def _cache(cache_dir, monkeypatch):
+  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
+
+
+def test_sample_and_evaluate_builtin_box(tmp_path):
+  out = tmp_path / "q.json"
+  assert main(["builtin:box", "--gripper", "suction", "--num-grasps", "12", "--seed", "3", "--samples", "4",
+               "--out", str(out)]) == 0
+  doc = json.loads(out.read_text())
+  assert len(doc["grasps"]) == 12
+  for g in doc["grasps"]:
+    assert g["gripper"] == "suction" and len(g["center"]) == 3 and len(g["pose"]) == 4
+    assert g["nominal"] in (0, 1) and 0.0 <= g["robust_probability"] <= 1.0
+  assert doc["parameters"]["seed"] == 3 and doc["parameters"]["num_samples"] == 4
+  assert "suction" in doc["parameters"]["grippers"]
+  # Same seed, same file.
+  out2 = tmp_path / "q2.json"
+  main(["builtin:box", "--gripper", "suction", "--num-grasps", "12", "--seed", "3", "--samples", "4",
+        "--out", str(out2)])
+  assert json.loads(out2.read_text())["grasps"] == doc["grasps"]
+
+
+def test_evaluate_given_grasps_in_file_order(tmp_path):
+  grasps = {"grasps": [
+      {"gripper": "parallel_jaw", "center": [0, 0, 0], "axis": [1, 0, 0], "approach": [0, 0, -1]},
+      {"gripper": "suction", "center": [0, 0, 0.02], "approach": [0, 0, -1]},
+      {"gripper": "suction", "center": [0.019, 0.0, 0.02], "approach": [0, 0, -1]},
+      {"gripper": "parallel_jaw", "center": [0.017, 0.017, 0], "axis": [1, -1, 0], "approach": [0, 0, -1],
+       "width": 0.05},
+  ]}
+  src, out = tmp_path / "in.json", tmp_path / "out.json"
+  src.write_text(json.dumps(grasps))
+  assert main(["builtin:cube", "--grasps", str(src), "--seed", "0", "--out", str(out)]) == 0
+  got = json.loads(out.read_text())["grasps"]
+  assert [g["gripper"] for g in got] == ["parallel_jaw", "suction", "suction", "parallel_jaw"]
+  assert got[0]["nominal"] == 1 and got[0]["robust_probability"] > 0.5 and got[0]["width"] == 0.05
+  assert got[1]["nominal"] == 1 and got[1]["robust_probability"] > 0.5
+  assert got[2]["nominal"] == 0 and got[2]["nominal_failure"] == "no_seal"
+  assert got[3]["nominal"] == 0 and got[3]["robust_probability"] < 0.5
+
+
+def test_bad_grasp_file_names_file_index_and_field(tmp_path, capsys):
+  src = tmp_path / "bad.json"
+  src.write_text(json.dumps({"grasps": [{"gripper": "suction", "center": [0, 0, 0.02], "approach": [0, 0, -1]},
+                                        {"gripper": "suction", "center": [0, "x", 0], "approach": [0, 0, -1]}]}))
+  assert main(["builtin:cube", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 1
+  err = capsys.readouterr().err
+  assert "bad.json" in err and "grasps[1]" in err and "'center'" in err
+  src.write_text(json.dumps({"grasps": [{"gripper": "claw", "center": [0, 0, 0], "approach": [0, 0, 1]}]}))
+  assert main(["builtin:cube", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 1
+  assert "'gripper'" in capsys.readouterr().err
+
+
+def test_broken_mesh_gives_a_clear_error(tmp_path, capsys):
+  bad = tmp_path / "empty.obj"
+  bad.write_text("")
+  assert main([str(bad), "--gripper", "suction", "--out", str(tmp_path / "o.json")]) == 1
+  assert "empty.obj" in capsys.readouterr().err
+
+
+def test_module_entry_point_runs(tmp_path, cache_dir):
+  out = tmp_path / "o.json"
+  r = subprocess.run([sys.executable, "-m", "dexjax.quality", "builtin:cube", "--gripper", "parallel_jaw",
+                      "--num-grasps", "4", "--samples", "2", "--out", str(out)], capture_output=True, text=True,
+                     env={**__import__("os").environ, "DEXJAX_CACHE": str(cache_dir)}, timeout=300)
+  assert r.returncode == 0, r.stderr
+  assert len(json.loads(out.read_text())["grasps"]) == 4

@@ -1,0 +1,137 @@
+"""Known answers of deterministic and robust quality, and jit / vmap / plain equivalence."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
+from dexjax.grippers import ParallelJawGripper, SuctionGripper
+from dexjax.quality import (FAILURE_REASONS, Conditions, nominal_conditions, parallel_jaw_perturbations,
+                            parallel_jaw_quality, robust_parallel_jaw_quality, robust_suction_quality,
+                            suction_perturbations, suction_quality)
+
+PJ = ParallelJawGripper()
+CUP = SuctionGripper()
+DOWN = jnp.array([0.0, 0.0, -1.0])
+
+
+def _pj(center, axis, approach=(0.0, 0.0, -1.0)):
+  return ParallelJawGrasp(center=jnp.asarray(center, jnp.float32), axis=jnp.asarray(axis, jnp.float32) /
+                          jnp.linalg.norm(jnp.asarray(axis, jnp.float32)),
+                          approach=jnp.asarray(approach, jnp.float32), width=jnp.float32(0.05))
+
+
+def _suction(center):
+  return SuctionGrasp(center=jnp.asarray(center, jnp.float32), approach=DOWN)
+
+
+_pj_quality = jax.jit(parallel_jaw_quality)
+_suction_quality = jax.jit(suction_quality)
+_robust_pj = jax.jit(robust_parallel_jaw_quality)
+_robust_suction = jax.jit(robust_suction_quality)
+
+CENTRED = _pj([0.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+# Jaws closing diagonally across the cube's vertical edge at (+2, +2) cm: each jaw meets a face at 45 degrees
+# to its line of action, outside the friction cone (arctan 0.8 = 38.7 degrees).
+CORNER = _pj([0.017, 0.017, 0.0], [1.0, -1.0, 0.0])
+
+
+def test_centred_parallel_jaw_grasp_on_cube_resists_and_corner_grasp_does_not(cube):
+  c = nominal_conditions(parallel_jaw_perturbations(), DOWN)
+  good = _pj_quality(cube, CENTRED, PJ, c)
+  assert bool(good.resists) and float(good.residual) < 1e-4
+  bad = _pj_quality(cube, CORNER, PJ, c)
+  assert not bool(bad.resists) and FAILURE_REASONS[int(bad.failure)] == "slip"
+  key = jax.random.key(0)
+  assert float(_robust_pj(key, cube, CENTRED, PJ).probability) >= 0.8
+  assert float(_robust_pj(key, cube, CORNER, PJ).probability) <= 0.2
+
+
+def test_parallel_jaw_resistance_depends_on_mass_through_the_force_limit(cube):
+  # Gravity along the jaw axis must be held by one finger's normal force alone (<= 20 N): 2 kg is fine,
+  # 2.5 kg (24.5 N) is not; gravity across the axis is held by friction 2 mu F = 32 N (3.2 kg).
+  along = Conditions(mass=jnp.float32(1.9), friction=jnp.float32(0.8), gravity=jnp.array([1.0, 0.0, 0.0]),
+                     disturbance=jnp.zeros(6))
+  assert bool(_pj_quality(cube, CENTRED, PJ, along).resists)
+  assert not bool(_pj_quality(cube, CENTRED, PJ, along.replace(mass=jnp.float32(2.2))).resists)
+  across = along.replace(gravity=jnp.array([0.0, 0.0, -1.0]), mass=jnp.float32(3.1))
+  assert bool(_pj_quality(cube, CENTRED, PJ, across).resists)
+  assert not bool(_pj_quality(cube, CENTRED, PJ, across.replace(mass=jnp.float32(3.4))).resists)
+
+
+def test_suction_centre_of_top_face_resists_edge_and_hole_do_not(box, box_with_hole):
+  c = nominal_conditions(suction_perturbations(), DOWN)
+  top = _suction_quality(box, _suction([0.0, 0.0, 0.02]), CUP, c)
+  assert bool(top.resists)
+  edge = _suction_quality(box, _suction([0.037, 0.0, 0.02]), CUP, c)
+  assert FAILURE_REASONS[int(edge.failure)] == "no_seal"
+  hole = _suction_quality(box_with_hole, _suction([0.0, 0.0, 0.02]), CUP, c)
+  assert not bool(hole.resists)
+  key = jax.random.key(1)
+  many = suction_perturbations(num_samples=40)
+  # Centred on the top face: fails only for heavy draws under strongly tilted gravity (the lateral pull at the
+  # COM, 2 cm below the cup, exceeds the cup's elastic torque), about one draw in five.
+  assert float(_robust_suction(key, box, _suction([0.0, 0.0, 0.02]), CUP, many).probability) >= 0.6
+  assert float(_robust_suction(key, box, _suction([0.037, 0.0, 0.02]), CUP).probability) == 0.0
+  assert float(_robust_suction(key, box_with_hole, _suction([0.0, 0.0, 0.02]), CUP).probability) == 0.0
+
+
+def test_suction_nominal_payload_is_vacuum_over_g(box):
+  grasp = _suction([0.0, 0.0, 0.02])
+  payload = CUP.vacuum_force / 9.81
+  c = nominal_conditions(suction_perturbations(), DOWN)
+  assert bool(_suction_quality(box, grasp, CUP, c.replace(mass=jnp.float32(0.98 * payload))).resists)
+  assert not bool(_suction_quality(box, grasp, CUP, c.replace(mass=jnp.float32(1.02 * payload))).resists)
+
+
+def test_robust_suction_probability_falls_as_mass_rises_past_payload(box):
+  grasp = _suction([0.0, 0.0, 0.02])
+  probs = []
+  for mean in (0.1, 0.3, 0.6, 0.9, 1.2):
+    p = suction_perturbations(num_samples=100, mass_mean=mean, mass_variance=0.01)
+    probs.append(float(_robust_suction(jax.random.key(2), box, grasp, CUP, p)
+                       .probability))
+  assert all(a >= b for a, b in zip(probs, probs[1:])), probs
+  assert probs[0] >= 0.9 and probs[-1] <= 0.05, probs
+
+
+def test_robust_quality_is_a_function_of_the_key(cube):
+  k = jax.random.key(5)
+  a = _robust_pj(k, cube, CENTRED, PJ)
+  b = _robust_pj(k, cube, CENTRED, PJ)
+  np.testing.assert_array_equal(np.asarray(a.outcomes.residual), np.asarray(b.outcomes.residual))
+  c = _robust_pj(jax.random.key(6), cube, CENTRED, PJ)
+  assert not np.array_equal(np.asarray(a.outcomes.residual), np.asarray(c.outcomes.residual))
+
+
+def test_jit_vmap_and_plain_calls_agree(cube, box):
+  grasps = jax.tree.map(lambda *x: jnp.stack(x), CENTRED, CORNER, _pj([0.0, 0.01, 0.005], [1.0, 0.1, 0.0]))
+  keys = jax.random.split(jax.random.key(3), 3)
+  plain = [robust_parallel_jaw_quality(keys[i], cube, jax.tree.map(lambda x: x[i], grasps), PJ) for i in range(3)]
+  batched = jax.jit(jax.vmap(robust_parallel_jaw_quality, in_axes=(0, None, 0, None)))(keys, cube, grasps, PJ)
+  for i in range(3):
+    np.testing.assert_array_equal(np.asarray(plain[i].outcomes.failure), np.asarray(batched.outcomes.failure[i]))
+    np.testing.assert_allclose(np.asarray(plain[i].outcomes.residual), np.asarray(batched.outcomes.residual[i]),
+                               rtol=1e-4, atol=2e-5)  # float rounding of ~0 residuals
+    assert float(plain[i].probability) == float(batched.probability[i])
+  s = jax.tree.map(lambda *x: jnp.stack(x), _suction([0.0, 0.0, 0.02]), _suction([0.03, 0.01, 0.02]))
+  plain = [robust_suction_quality(keys[i], box, jax.tree.map(lambda x: x[i], s), CUP).probability for i in range(2)]
+  batched = jax.jit(jax.vmap(robust_suction_quality, in_axes=(0, None, 0, None)))(keys[:2], box, s, CUP).probability
+  np.testing.assert_array_equal(np.asarray(plain), np.asarray(batched))
+
+
+def test_quality_is_differentiable_in_the_grasp_centre(cube):
+  """The residual of an unresisted grasp has a finite gradient with respect to the grasp centre."""
+  c = Conditions(mass=jnp.float32(2.5), friction=jnp.float32(0.8), gravity=jnp.array([1.0, 0.0, 0.0]),
+                 disturbance=jnp.zeros(6))
+
+  def residual(center):
+    return parallel_jaw_quality(cube, CENTRED.replace(center=center), PJ, c).residual
+
+  g = jax.grad(residual)(jnp.array([0.0, 0.002, 0.001]))
+  assert np.all(np.isfinite(np.asarray(g)))
+  assert math.isfinite(float(residual(jnp.zeros(3))))
