@@ -19,10 +19,12 @@ from dexjax.quality import wrench
 TOL = wrench.DEFAULT_RESIDUAL_TOL
 TORQUE_SCALE = 100.0  # 1/m
 
-# Jitted batch functions shared by all tests (one compilation per input shape).
+# Jitted functions shared by all tests (one compilation per input shape; batch sizes are kept equal).
+# (`wrench.nnls` itself runs compiled when called plainly.)
 _nnls_batch = jax.jit(jax.vmap(wrench.nnls))
 _residual_batch = jax.jit(jax.vmap(wrench.wrench_residual))
-_resists_batch = jax.jit(jax.vmap(wrench.resists))
+_residual_single = jax.jit(wrench.wrench_residual)
+_BATCH = 2000  # Batch size of every `_nnls_batch` call.
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -172,3 +174,199 @@ def _cvxopt_residuals(g, t, groups, limits) -> np.ndarray:
     excess = np.maximum(ci @ alpha - limits[i], 0.0)
     out[i] = np.sqrt(np.sum((gi @ alpha - t[i]) ** 2) + np.sum(excess**2))
   return out
+
+
+def _random_nnls(rng: np.random.Generator, num: int, m: int, n: int):
+  """Random NNLS problems a (num, m, n), b (num, m): columns N(mu, 1) with mu ~ U(0, 1.5) per problem, so the
+  cone of the columns ranges from almost everything to a narrow cone (some residuals are 0, most not)."""
+  a = rng.normal(size=(num, m, n)) + rng.uniform(0.0, 1.5, size=(num, 1, 1))
+  b = 3.0 * rng.normal(size=(num, m))
+  return a, b
+
+
+# ----------------------------------------------------------------------------------------------------
+# NNLS against scipy.
+# ----------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("m, n", [(8, 22), (6, 20)])
+def test_nnls_matches_scipy(m, n):
+  rng = np.random.default_rng(10 * m + n)
+  a, b = _random_nnls(rng, _BATCH, m, n)
+  ref = _scipy_residuals(a, b)
+  out = _nnls_batch(a.astype(np.float32), b.astype(np.float32))
+  x, res = np.asarray(out.x, np.float64), np.asarray(out.residual, np.float64)
+  err = np.abs(res - ref)
+  scale = np.maximum(1.0, ref)
+  print(f"\n{m}x{n}: {np.mean(ref < 1e-9):.2f} with residual 0, converged {np.mean(out.converged):.4f}, "
+        f"max |err| {err.max():.2e}, err > 1e-4 (rel/abs) in {np.sum(err > 1e-4 * scale)} of {len(ref)}")
+  assert 0.1 < np.mean(ref < 1e-9) < 0.9  # The set mixes zero and positive residuals.
+  assert np.all(x >= 0.0)
+  assert np.all(np.asarray(out.converged))
+  # The reported residual is that of the returned x (float32 problem, float64 arithmetic), up to float32
+  # rounding of A x - b ...
+  a32, b32 = a.astype(np.float32).astype(np.float64), b.astype(np.float32).astype(np.float64)
+  rounding = 1e-6 * (np.linalg.norm(b, axis=1) + np.linalg.norm(a, axis=(1, 2)) * np.linalg.norm(x, axis=1))
+  true_res = np.linalg.norm(np.einsum("bij,bj->bi", a32, x) - b32, axis=1)
+  assert np.all(np.abs(res - true_res) <= rounding)
+  # ... so it is never below the optimum beyond that rounding ...
+  assert np.all(res >= ref - 2.0 * rounding)
+  # ... and matches it to ~1e-4: all within 1e-3 and >= 99.8 % within 1e-4 (relative or absolute).
+  assert np.all(err <= 1e-3 * scale)
+  assert np.mean(err <= 1e-4 * scale) >= 0.998
+
+
+def test_nnls_small_cases():
+  a = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+  out = wrench.nnls(a, np.array([2.0, 1.0, 1.0]))
+  np.testing.assert_allclose(out.x, [1.5, 1.0], rtol=1e-6)
+  np.testing.assert_allclose(out.residual, np.sqrt(0.5), rtol=1e-6)
+  out = wrench.nnls(a, np.array([-1.0, -1.0, -1.0]))
+  np.testing.assert_array_equal(out.x, [0.0, 0.0])
+  np.testing.assert_allclose(out.residual, np.sqrt(3.0), rtol=1e-6)
+  assert bool(out.converged)
+  out = wrench.nnls(a, np.zeros(3))
+  np.testing.assert_array_equal(out.x, [0.0, 0.0])
+  assert float(out.residual) == 0.0 and bool(out.converged)
+  # Too few iterations for a target that needs three columns: feasible, not converged, an upper bound.
+  a = np.random.default_rng(0).uniform(0.5, 1.5, size=(1, 3, 5))
+  b = a[:, :, :3] @ np.array([1.0, 2.0, 3.0])
+  short = wrench.nnls(a[0], b[0], num_iterations=2)
+  assert not bool(short.converged) and np.all(np.asarray(short.x) >= 0)
+  assert float(short.residual) >= _scipy_residuals(a, b)[0] - 1e-5
+  full = wrench.nnls(a[0], b[0], num_iterations=12)
+  assert bool(full.converged) and float(full.residual) < 1e-5
+  with pytest.raises(ValueError):
+    wrench.nnls(np.ones((2, 8, 22)), np.ones((2, 8)))
+
+
+# ----------------------------------------------------------------------------------------------------
+# Wrench resistance: known answers.
+# ----------------------------------------------------------------------------------------------------
+
+
+def test_exact_combination_within_limits_has_zero_residual():
+  rng = np.random.default_rng(1)
+  g, _, groups, limits = _parallel_jaw(rng, 10)
+  for i in range(10):
+    alpha = np.where(rng.uniform(size=20) < 0.4, rng.uniform(0.1, 1.0, size=20), 0.0)
+    alpha *= 0.9 * limits[i].min() / (groups[i] @ alpha).max()  # Every group sum below its limit.
+    t = g[i] @ alpha
+    assert float(_residual_single(g[i], t, groups[i], limits[i])) < 1e-4
+    # The same target scaled beyond the force limit (and beyond 1 mN of reach) does not resist.
+    assert float(_residual_single(g[i], 3.0 * t, groups[i], limits[i])) > 10 * TOL
+
+
+def _one_column_problem(rho: float, c: float):
+  """Group 0: columns rho e1, e2, -e1, e4 with limit c; group 1: e5, e6 with limit 1."""
+  e = np.eye(6)
+  g = np.stack([rho * e[0], e[1], -e[0], e[3], e[4], e[5]], axis=1)
+  groups = np.array([[1.0, 1.0, 1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 1.0]])
+  return g, groups, np.array([c, 1.0])
+
+
+@pytest.mark.parametrize("rho, s, c", [(1.0, 12.0, 10.0), (3.0, 25.0, 20.0), (0.5, 10.0, 9.99), (1.0, 10.001, 10.0)])
+def test_exceeding_force_limit_along_one_column(rho, s, c):
+  # Target s * rho * e1 with s > c: only the first column helps, and with weight w the squared residual is
+  # rho^2 (s - w)^2 + (w - c)^2, minimal at w = (rho^2 s + c) / (rho^2 + 1): residual (s - c) rho / sqrt(rho^2 + 1).
+  g, groups, limits = _one_column_problem(rho, c)
+  t = s * rho * np.eye(6)[0]
+  expected = (s - c) * rho / np.sqrt(rho**2 + 1.0)
+  np.testing.assert_allclose(float(_residual_single(g, t, groups, limits)), expected, rtol=1e-5, atol=2e-6)
+  # Within the limit: resists; a target no column can produce: the residual is its norm.
+  assert float(_residual_single(g, 0.5 * c * rho * np.eye(6)[0], groups, limits)) < 1e-5
+  np.testing.assert_allclose(float(_residual_single(g, -2.0 * np.eye(6)[2], groups, limits)), 2.0, rtol=1e-6)
+
+
+def test_residual_gradient_is_the_envelope_gradient():
+  # For the one-column problem residual = (s - c) rho / sqrt(rho^2 + 1) with t = s rho e1: the derivative is
+  # 1 / sqrt(rho^2 + 1) in t[0] and -rho / sqrt(rho^2 + 1) in the limit c; 0 where the grasp resists.
+  rho, c = 2.0, 10.0
+  g, groups, limits = _one_column_problem(rho, c)
+  grad = jax.jit(jax.grad(wrench.wrench_residual, argnums=(0, 1, 3)))
+  d_g, d_t, d_limits = grad(g, 15.0 * rho * np.eye(6)[0], groups, limits)
+  np.testing.assert_allclose(d_t, np.eye(6)[0] / np.sqrt(rho**2 + 1.0), rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(d_limits, [-rho / np.sqrt(rho**2 + 1.0), 0.0], rtol=1e-5, atol=1e-6)
+  assert np.all(np.isfinite(d_g))
+  for v in grad(g, 0.5 * c * rho * np.eye(6)[0], groups, limits):
+    np.testing.assert_array_equal(v, 0.0)
+
+
+def test_lift_bounded_groups_layout():
+  rng = np.random.default_rng(2)
+  g, t, groups, limits = rng.normal(size=(6, 5)), rng.normal(size=6), np.array([[1, 1, 0, 0, 0.0]]), [3.0]
+  a, b = wrench.lift_bounded_groups(g, t, groups, limits)
+  assert a.shape == (7, 6) and b.shape == (7,) and a.dtype == jnp.float32
+  np.testing.assert_allclose(a[:6, :5], g, rtol=1e-6)
+  np.testing.assert_array_equal(a[:6, 5], 0.0)
+  np.testing.assert_array_equal(a[6], [1, 1, 0, 0, 0, 1])
+  np.testing.assert_allclose(b, np.concatenate([t, limits]), rtol=1e-6)
+
+
+# ----------------------------------------------------------------------------------------------------
+# Wrench resistance: decisions against cvxopt on 10,000 grasps.
+# ----------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def decision_sets():
+  """Per family: 3,500 random grasps + 1,500 moved near the decision boundary, and cvxopt residuals."""
+  rng = np.random.default_rng(2024)
+  sets = {}
+  for name, family in (("parallel_jaw", _parallel_jaw), ("suction", _suction)):
+    g, t, groups, limits = family(rng, 7000)
+    near_t, moved = _near_boundary(rng, g[3500:], t[3500:], groups[3500:], limits[3500:])
+    t[3500:] = near_t
+    keep = np.concatenate([np.arange(3500), 3500 + np.nonzero(moved)[0][:1500]])
+    assert keep.size == 5000
+    g, t, groups, limits = g[keep], t[keep], groups[keep], limits[keep]
+    start = time.perf_counter()
+    ref = _cvxopt_residuals(g, t, groups, limits)
+    print(f"\n{name}: cvxopt reference for 5000 grasps in {time.perf_counter() - start:.1f} s")
+    sets[name] = (g, t, groups, limits, ref)
+  return sets
+
+
+@pytest.mark.parametrize("name", ["parallel_jaw", "suction"])
+def test_decisions_match_cvxopt(decision_sets, name):
+  g, t, groups, limits, ref = decision_sets[name]
+  res = np.asarray(_residual_batch(g, t, groups, limits), np.float64)
+  ours, theirs = res <= TOL, ref <= TOL
+  near = (ref > 0.3 * TOL) & (ref < 3.0 * TOL)
+  disagree = ours != theirs
+  false_resist = ours & (ref > 2.0 * TOL)
+  print(f"\n{name}: reference resists {theirs.sum()} / {len(ref)}, {near.sum()} within [0.3, 3] tol; "
+        f"disagreements {disagree.sum()} (we say resists: {np.sum(disagree & ours)}, "
+        f"we say not: {np.sum(disagree & ~ours)}); false 'resists' with reference > 2 tol: "
+        f"{false_resist.sum()}; max |ours - cvxopt| {np.abs(res - ref).max():.2e} N")
+  for i in np.nonzero(disagree)[0][:10]:
+    print(f"  grasp {i}: ours {res[i]:.4e} N, cvxopt {ref[i]:.4e} N")
+  assert 0.35 < theirs.mean() < 0.65 and near.sum() > 1000
+  assert disagree.mean() <= 0.005
+  assert false_resist.sum() == 0
+  # Our residual is that of a feasible alpha, so it does not undercut the optimum beyond rounding.
+  assert np.all(res >= ref - 1e-5 * (1.0 + np.linalg.norm(t, axis=1)))
+
+
+# ----------------------------------------------------------------------------------------------------
+# Plain, jit and vmap agree bitwise.
+# ----------------------------------------------------------------------------------------------------
+
+
+def test_plain_jit_vmap_identical(decision_sets):
+  g, t, groups, limits, _ = (v.astype(np.float32) for v in decision_sets["parallel_jaw"])
+  res_batched = np.asarray(_residual_batch(g, t, groups, limits))
+  # 1,000 random and 1,000 near-boundary grasps (the latter exercise degenerate pivoting).
+  sel = np.concatenate([np.arange(1000), np.arange(3500, 4500)])
+  g, t, groups, limits, res_batched = g[sel], t[sel], groups[sel], limits[sel], res_batched[sel]
+  a, b = (np.asarray(v) for v in jax.vmap(wrench.lift_bounded_groups)(g, t, groups, limits))
+  batched = _nnls_batch(a, b)
+  np.testing.assert_array_equal(res_batched, batched.residual)
+  for i in list(range(0, 1000, 50)) + list(range(1000, 2000, 25)):
+    out = wrench.nnls(a[i], b[i])  # Plain call.
+    for field in ("x", "residual", "converged"):
+      np.testing.assert_array_equal(getattr(out, field), getattr(batched, field)[i])
+    np.testing.assert_array_equal(_residual_single(g[i], t[i], groups[i], limits[i]), res_batched[i])
+  for i in (1000, 1999):  # Plain calls of the wrappers too (the lifting runs op by op).
+    np.testing.assert_array_equal(wrench.wrench_residual(g[i], t[i], groups[i], limits[i]), res_batched[i])
+    assert bool(wrench.resists(g[i], t[i], groups[i], limits[i])) == (res_batched[i] <= TOL)
