@@ -18,7 +18,7 @@ def _cache(cache_dir, monkeypatch):
 
 def test_sample_and_evaluate_builtin_box(tmp_path):
   out = tmp_path / "q.json"
-  assert main(["builtin:box", "--gripper", "suction", "--num-grasps", "12", "--seed", "3", "--samples", "4",
+  assert main(["builtin:box", "--grid-size", "64", "--gripper", "suction", "--num-grasps", "12", "--seed", "3", "--samples", "4",
                "--out", str(out)]) == 0
   doc = json.loads(out.read_text())
   assert len(doc["grasps"]) == 12
@@ -29,7 +29,7 @@ def test_sample_and_evaluate_builtin_box(tmp_path):
   assert "suction" in doc["parameters"]["grippers"]
   # Same seed, same file.
   out2 = tmp_path / "q2.json"
-  main(["builtin:box", "--gripper", "suction", "--num-grasps", "12", "--seed", "3", "--samples", "4",
+  main(["builtin:box", "--grid-size", "64", "--gripper", "suction", "--num-grasps", "12", "--seed", "3", "--samples", "4",
         "--out", str(out2)])
   assert json.loads(out2.read_text())["grasps"] == doc["grasps"]
 
@@ -44,7 +44,7 @@ def test_evaluate_given_grasps_in_file_order(tmp_path):
   ]}
   src, out = tmp_path / "in.json", tmp_path / "out.json"
   src.write_text(json.dumps(grasps))
-  assert main(["builtin:cube", "--grasps", str(src), "--seed", "0", "--out", str(out)]) == 0
+  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--seed", "0", "--out", str(out)]) == 0
   got = json.loads(out.read_text())["grasps"]
   assert [g["gripper"] for g in got] == ["parallel_jaw", "suction", "suction", "parallel_jaw"]
   assert got[0]["nominal"] == 1 and got[0]["robust_probability"] > 0.5 and got[0]["width"] == 0.05
@@ -57,11 +57,11 @@ def test_bad_grasp_file_names_file_index_and_field(tmp_path, capsys):
   src = tmp_path / "bad.json"
   src.write_text(json.dumps({"grasps": [{"gripper": "suction", "center": [0, 0, 0.02], "approach": [0, 0, -1]},
                                         {"gripper": "suction", "center": [0, "x", 0], "approach": [0, 0, -1]}]}))
-  assert main(["builtin:cube", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 1
+  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 1
   err = capsys.readouterr().err
   assert "bad.json" in err and "grasps[1]" in err and "'center'" in err
   src.write_text(json.dumps({"grasps": [{"gripper": "claw", "center": [0, 0, 0], "approach": [0, 0, 1]}]}))
-  assert main(["builtin:cube", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 1
+  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 1
   assert "'gripper'" in capsys.readouterr().err
 
 
@@ -74,8 +74,41 @@ def test_broken_mesh_gives_a_clear_error(tmp_path, capsys):
 
 def test_module_entry_point_runs(tmp_path, cache_dir):
   out = tmp_path / "o.json"
-  r = subprocess.run([sys.executable, "-m", "dexjax.quality", "builtin:cube", "--gripper", "parallel_jaw",
+  r = subprocess.run([sys.executable, "-m", "dexjax.quality", "builtin:cube", "--grid-size", "64", "--gripper", "parallel_jaw",
                       "--num-grasps", "4", "--samples", "2", "--out", str(out)], capture_output=True, text=True,
                      env={**__import__("os").environ, "DEXJAX_CACHE": str(cache_dir)}, timeout=300)
   assert r.returncode == 0, r.stderr
   assert len(json.loads(out.read_text())["grasps"]) == 4
+
+
+def test_config_file_sets_gripper_and_perturbations(tmp_path):
+  """Values from the file reach the report and the physics (the default 2 cm cup seals at the face centre)."""
+  grasps = {"grasps": [{"gripper": "suction", "center": [0, 0, 0.02], "approach": [0, 0, -1]}]}
+  src = tmp_path / "in.json"
+  src.write_text(json.dumps(grasps))
+  cfg = tmp_path / "cup.yaml"
+  cfg.write_text("num_samples: 6\nthreshold: 0.75\ngrippers:\n  suction:\n    cup_radius: 0.03\n"
+                 "perturbations:\n  suction:\n    mass_mean: 0.05\n")
+  out = tmp_path / "o.json"
+  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--config", str(cfg),
+               "--out", str(out)]) == 0
+  doc = json.loads(out.read_text())
+  p = doc["parameters"]
+  assert p["num_samples"] == 6 and p["threshold"] == 0.75
+  assert p["grippers"]["suction"]["cup_radius"] == 0.03 and p["grippers"]["suction"]["cone_height"] == 0.01
+  assert p["perturbations"]["suction"]["mass_mean"] == 0.05
+  # A 6 cm cup does not fit on the 4 cm cube's face: the lip hangs over the edges.
+  assert doc["grasps"][0]["nominal_failure"] == "no_seal"
+  # --samples on the command line overrides the file.
+  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--config", str(cfg), "--samples", "3",
+               "--out", str(out)]) == 0
+  assert json.loads(out.read_text())["parameters"]["num_samples"] == 3
+
+
+def test_bad_config_names_file_and_field(tmp_path, capsys):
+  cfg = tmp_path / "bad.yaml"
+  cfg.write_text("grippers:\n  suction:\n    cup_radius: -0.01\n")
+  assert main(["builtin:cube", "--gripper", "suction", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
+  err = capsys.readouterr().err
+  assert "bad.yaml" in err and "grippers.suction.cup_radius" in err and ">= 0" in err
+  assert not (tmp_path / "o").exists()

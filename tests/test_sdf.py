@@ -83,3 +83,14 @@ def test_ray_cast_matches_exact_mesh_intersection(sphere):
   both = np.asarray(hit) & ref_hit & clear
   assert both.sum() > 50
   np.testing.assert_allclose(np.asarray(t)[both], ref_t[both], atol=2e-4)
+
+
+def test_sdf_value_is_differentiable_inside_and_outside_the_grid(cube):
+  """`jax.grad` of the distance is finite everywhere and equals the exact box gradient near a face."""
+  grad = jax.jit(jax.vmap(jax.grad(sdf_value, argnums=1), in_axes=(None, 0)))
+  p = np.array([[0.025, 0.001, -0.002], [-0.003, 0.017, 0.004], [0.0, 0.0, 0.2], [0.3, -0.004, 0.002]],
+               np.float32)
+  g = np.asarray(grad(cube, jnp.asarray(p)))
+  assert np.all(np.isfinite(g))
+  exact = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [1.0, 0, 0]])
+  np.testing.assert_allclose(g, exact, atol=0.02)

@@ -14,3 +14,14 @@ from dexjax.geometry.mesh_io import SUPPORTED_EXTENSIONS
 from dexjax.geometry.mesh_io import load_mesh
 from dexjax.geometry.mesh_io import validate_and_repair
 from dexjax.geometry.object_model import ObjectModel
+from dexjax.geometry.sdf import first_crossing
+from dexjax.geometry.sdf import ray_cast
+from dexjax.geometry.sdf import sdf_gradient
+from dexjax.geometry.sdf import sdf_value
+from dexjax.geometry.sdf import surface_normal
+from dexjax.geometry.transforms import normalize
+from dexjax.geometry.transforms import perpendicular
+from dexjax.geometry.transforms import sample_cone
+from dexjax.geometry.transforms import sample_unit_sphere
+from dexjax.geometry.transforms import so3_exp
+from dexjax.geometry.transforms import tangent_basis

@@ -25,7 +25,9 @@ def _cell(model: ObjectModel, x: jax.Array) -> tuple[jax.Array, jax.Array, jax.A
   d = model.sdf.shape[0]
   g = (x - model.origin) / model.voxel_size
   gc = jnp.clip(g, 0.0, d - 1.0)
-  outside = jnp.linalg.norm(g - gc) * model.voxel_size
+  sq = jnp.sum((g - gc) ** 2)
+  pos = sq > 0.0  # double `where`: the norm's gradient at 0 is NaN, and the point is usually inside the grid
+  outside = jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0) * model.voxel_size
   i0 = jnp.clip(jnp.floor(gc), 0, d - 2).astype(jnp.int32)
   return i0, gc - i0, outside
 

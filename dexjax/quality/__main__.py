@@ -9,17 +9,19 @@ MESH is a mesh file (OBJ, STL, PLY, GLB, OFF) or a built-in object such as ``bui
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
 
 import jax
 
+from dexjax.config import ConfigError
 from dexjax.geometry.mesh_io import MeshError
 from dexjax.objects import load_object_model
 from dexjax.quality.grasp_json import GraspFileError
-from dexjax.quality.report import (ReportSettings, evaluate_report, object_summary, read_grasp_file,
-                                   report_parameters, sample_grasps)
+from dexjax.quality.report import (ReportSettings, evaluate_report, load_settings, object_summary,
+                                   read_grasp_file, report_parameters, sample_grasps)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -33,19 +35,34 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument("--seed", type=int, default=0)
   p.add_argument("--out", required=True, help="output JSON path")
   p.add_argument("--scale", type=float, default=1.0, help="mesh unit scale, e.g. 0.001 for millimetres")
-  p.add_argument("--samples", type=int, default=10, help="Monte-Carlo samples M (10 rewards, 25 supervisor)")
-  p.add_argument("--threshold", type=float, default=0.5, help="robust label threshold (0.5 rewards, 0.75 supervisor)")
+  p.add_argument("--grid-size", type=int, default=100,
+                 help="signed distance grid resolution per axis (default 100, as Dex-Net)")
+  p.add_argument("--config", help="YAML file of gripper, perturbation and solver parameters "
+                 "(layout: configs/quality.yaml; default: Dex-Net 4.0's values)")
+  p.add_argument("--samples", type=int, help="Monte-Carlo samples M (10 rewards, 25 supervisor; overrides --config)")
+  p.add_argument("--threshold", type=float,
+                 help="robust label threshold (0.5 rewards, 0.75 supervisor; overrides --config)")
   return p
 
 
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
-  if args.num_grasps <= 0 or args.samples <= 0 or not 0.0 <= args.threshold <= 1.0:
+  if args.grid_size < 16:
+    print(f"error: --grid-size must be at least 16, got {args.grid_size}", file=sys.stderr)
+    return 2
+  if args.num_grasps <= 0 or (args.samples is not None and args.samples <= 0) or (
+      args.threshold is not None and not 0.0 <= args.threshold <= 1.0):
     print("error: --num-grasps and --samples must be positive and --threshold within [0, 1]", file=sys.stderr)
     return 2
-  settings = ReportSettings(num_samples=args.samples, threshold=args.threshold)
   try:
-    model = load_object_model(args.mesh, scale=args.scale)
+    settings = load_settings(args.config) if args.config else ReportSettings()
+  except ConfigError as e:
+    print(f"error: {e}", file=sys.stderr)
+    return 2
+  overrides = {k: v for k, v in (("num_samples", args.samples), ("threshold", args.threshold)) if v is not None}
+  settings = dataclasses.replace(settings, **overrides)
+  try:
+    model = load_object_model(args.mesh, scale=args.scale, grid_size=args.grid_size)
     key = jax.random.key(args.seed)
     start = time.perf_counter()
     if args.grasps:
@@ -70,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
   with open(args.out, "w") as f:
     json.dump(out, f, indent=1)
   robust = sum(r["robust"] for r in records)
-  print(f"{len(records)} grasps on {args.mesh}: {robust} robust (p > {args.threshold}); "
+  print(f"{len(records)} grasps on {args.mesh}: {robust} robust (p > {settings.threshold}); "
         f"{time.perf_counter() - start:.1f} s; wrote {args.out}")
   return 0
 

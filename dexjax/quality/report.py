@@ -6,11 +6,13 @@ This is the library side of ``python -m dexjax.quality``; the CLI only parses ar
 from __future__ import annotations
 
 import dataclasses
+import os
 from typing import Any
 
 import jax
 import numpy as np
 
+from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.grasps import parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
@@ -28,30 +30,65 @@ _suction_pose = jax.jit(jax.vmap(suction_pose))
 
 @dataclasses.dataclass(frozen=True)
 class ReportSettings:
-  """Everything that parameterises a report (all recorded in its output)."""
+  """Everything that parameterises a report (all recorded in its output); defaults are Dex-Net 4.0's.
+
+  ``num_samples`` overrides the ``num_samples`` of both perturbation models.
+  """
 
   parallel_jaw: ParallelJawGripper = ParallelJawGripper()
   suction: SuctionGripper = SuctionGripper()
   num_samples: int = 10
   threshold: float = 0.5
   config: QualityConfig = QualityConfig()
+  parallel_jaw_perturbations: Perturbations = parallel_jaw_perturbations()
+  suction_perturbations: Perturbations = suction_perturbations()
 
   def perturbations(self, gripper: str) -> Perturbations:
-    make = parallel_jaw_perturbations if gripper == "parallel_jaw" else suction_perturbations
-    return make(self.num_samples)
+    p = self.parallel_jaw_perturbations if gripper == "parallel_jaw" else self.suction_perturbations
+    return p.replace(num_samples=self.num_samples)
 
   def gripper(self, gripper: str) -> ParallelJawGripper | SuctionGripper:
     return self.parallel_jaw if gripper == "parallel_jaw" else self.suction
 
 
-def _as_dict(obj: Any) -> Any:
-  if dataclasses.is_dataclass(obj):
-    return {f.name: _as_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-  if isinstance(obj, (list, tuple)):
-    return [_as_dict(x) for x in obj]
-  if isinstance(obj, (np.ndarray, jax.Array)):
-    return np.asarray(obj).tolist()
-  return obj
+_GRIPPERS = ("parallel_jaw", "suction")
+
+
+def settings_from_config(data: dict[str, Any], source: str) -> ReportSettings:
+  """`ReportSettings` from a decoded config mapping (layout: ``configs/quality.yaml``); unset fields keep defaults.
+
+  Raises:
+    ConfigError: unknown section or field, wrong type, negative number, or a threshold outside [0, 1].
+  """
+  check_sections(data, ("num_samples", "threshold", "quality", "grippers", "perturbations"), source=source)
+  s = ReportSettings()
+  top = override(s, {k: data[k] for k in ("num_samples", "threshold") if k in data}, source=source, section="",
+                 minimum=0)
+  if top.num_samples < 1:
+    raise ConfigError(source, "num_samples", f"expected an integer >= 1, got {top.num_samples}")
+  if top.threshold > 1.0:
+    raise ConfigError(source, "threshold", f"expected a number in [0, 1], got {top.threshold}")
+  grippers = data.get("grippers") or {}
+  perturbations = data.get("perturbations") or {}
+  for name, section in (("grippers", grippers), ("perturbations", perturbations)):
+    if not isinstance(section, dict):
+      raise ConfigError(source, name, f"expected a mapping with keys {' and '.join(_GRIPPERS)}, got {section!r}")
+    check_sections(section, _GRIPPERS, source=source, section=name)
+  kw = dict(source=source, minimum=0.0)
+  return dataclasses.replace(
+      top,
+      config=override(s.config, data.get("quality"), section="quality", **kw),
+      parallel_jaw=override(s.parallel_jaw, grippers.get("parallel_jaw"), section="grippers.parallel_jaw", **kw),
+      suction=override(s.suction, grippers.get("suction"), section="grippers.suction", **kw),
+      parallel_jaw_perturbations=override(s.parallel_jaw_perturbations, perturbations.get("parallel_jaw"),
+                                          section="perturbations.parallel_jaw", **kw),
+      suction_perturbations=override(s.suction_perturbations, perturbations.get("suction"),
+                                     section="perturbations.suction", **kw))
+
+
+def load_settings(path: str | os.PathLike[str]) -> ReportSettings:
+  """`ReportSettings` from a YAML config file (see `settings_from_config`)."""
+  return settings_from_config(load_yaml(path), os.fspath(path))
 
 
 def sample_grasps(key: jax.Array, model: ObjectModel, gripper: str, num_grasps: int,
@@ -106,9 +143,9 @@ def report_parameters(settings: ReportSettings, seed: int, grippers: list[str]) 
       "seed": seed,
       "num_samples": settings.num_samples,
       "threshold": settings.threshold,
-      "quality": _as_dict(settings.config),
-      "grippers": {g: _as_dict(settings.gripper(g)) for g in grippers},
-      "perturbations": {g: _as_dict(settings.perturbations(g)) for g in grippers},
+      "quality": as_dict(settings.config),
+      "grippers": {g: as_dict(settings.gripper(g)) for g in grippers},
+      "perturbations": {g: as_dict(settings.perturbations(g)) for g in grippers},
   }
 
 
