@@ -5,7 +5,9 @@ Pure, composable ``jit``/``vmap`` functions for analytic grasp quality of parall
 and object models. Every function works on a single item; batch with `jax.vmap`.
 """
 
-from dexjax import contacts, geometry, quality, sampling
+from dexjax import config, contacts, geometry, objects, quality, sampling
+from dexjax.config import ConfigError
+from dexjax.objects import BUILTIN_OBJECTS, builtin_mesh, load_object_model
 from dexjax.contacts import *  # noqa: F401,F403
 from dexjax.geometry import *  # noqa: F401,F403
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
