@@ -13,7 +13,8 @@ bounding-box centre is at the origin:
   upright at its +x end (overall 8 x 4 x 8 cm; an extruded L profile), so the centre of mass is off the
   bounding-box centre in x and z.
 
-An object spec is either ``'builtin:NAME'`` or a mesh file path (see `dexjax.geometry.load_mesh`).
+An object spec is ``'builtin:NAME'``, ``'procedural:L{level}/{index}[@{seed}]'`` (see
+`dexjax.objects.procedural`) or a mesh file path (see `dexjax.geometry.load_mesh`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ import trimesh
 from dexjax.geometry.cache import cached_object_model
 from dexjax.geometry.mesh_io import load_mesh
 from dexjax.geometry.object_model import ObjectModel
+from dexjax.objects.procedural import PROCEDURAL_PREFIX
+from dexjax.objects.procedural import procedural_spec_mesh
 
 BUILTIN_PREFIX: str = 'builtin:'
 """Prefix of built-in object specs, e.g. ``'builtin:box'``."""
@@ -183,20 +186,24 @@ def resolve_mesh(spec: str | os.PathLike[str], *, scale: float = 1.0) -> tuple[t
   """Turns an object spec into a mesh in metres and a display name.
 
   Args:
-    spec: ``'builtin:NAME'`` (see `BUILTIN_OBJECTS`) or a mesh file path (see `load_mesh`).
+    spec: ``'builtin:NAME'`` (see `BUILTIN_OBJECTS`), ``'procedural:L{level}/{index}[@{seed}]'`` (see
+      `dexjax.objects.procedural_mesh`) or a mesh file path (see `load_mesh`).
     scale: factor applied to the coordinates (e.g. 0.001 for a file in millimetres); also applies to
-      built-ins.
+      built-in and procedural objects.
 
   Returns:
     (mesh, name): the repaired mesh and the spec as a string (used in messages).
 
   Raises:
-    ValueError: unknown builtin name or a bad scale.
+    ValueError: unknown builtin name, malformed procedural spec or a bad scale.
     MeshError: the file cannot be loaded or repaired.
   """
   spec = os.fspath(spec)
-  if isinstance(spec, str) and spec.startswith(BUILTIN_PREFIX):
-    mesh = builtin_mesh(spec[len(BUILTIN_PREFIX):])
+  if isinstance(spec, str) and spec.startswith((BUILTIN_PREFIX, PROCEDURAL_PREFIX)):
+    if spec.startswith(PROCEDURAL_PREFIX):
+      mesh = procedural_spec_mesh(spec)
+    else:
+      mesh = builtin_mesh(spec[len(BUILTIN_PREFIX):])
     if not (np.isfinite(scale) and scale > 0):
       raise ValueError(f"resolve_mesh('{spec}'): scale must be a finite positive number, got {scale!r}")
     if scale != 1.0:
@@ -215,7 +222,7 @@ def load_object_model(
   """Resolves an object spec and returns its (cached) `ObjectModel`; what the command-line tools call.
 
   Args:
-    spec: ``'builtin:NAME'`` or a mesh file path.
+    spec: ``'builtin:NAME'``, ``'procedural:L{level}/{index}[@{seed}]'`` or a mesh file path.
     cache_dir: model cache directory (default: ``$DEXJAX_CACHE`` or ``~/.cache/dexjax/objects``).
     scale: coordinate scale applied when loading (see `resolve_mesh`).
     **build_kwargs: `dexjax.geometry.build_object_model` arguments (grid_size, padding,
