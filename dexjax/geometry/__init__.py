@@ -5,9 +5,12 @@ from dexjax.geometry.build import grid_frame
 from dexjax.geometry.build import sample_surface
 from dexjax.geometry.cache import CACHE_ENV_VAR
 from dexjax.geometry.cache import CACHE_FORMAT_VERSION
+from dexjax.geometry.cache import atomic_write_npz
 from dexjax.geometry.cache import cache_key
+from dexjax.geometry.cache import content_key
 from dexjax.geometry.cache import cached_object_model
 from dexjax.geometry.cache import default_cache_dir
+from dexjax.geometry.cache import mesh_content_key
 from dexjax.geometry.mesh_io import MAX_HOLE_EDGES
 from dexjax.geometry.mesh_io import MeshError
 from dexjax.geometry.mesh_io import SUPPORTED_EXTENSIONS

@@ -8,6 +8,9 @@ argument only labels error messages and is not part of the key.
 Files are written atomically (temporary file in the same directory, then `os.replace`), so concurrent
 readers never see a partial file. A file that cannot be read or does not match its key is reported with a
 `RuntimeWarning`, rebuilt and replaced. A cache directory that cannot be written only produces a warning.
+
+`content_key` / `mesh_content_key` and `atomic_write_npz` are the generic key and write helpers; other
+caches (e.g. `dexjax.objects.collision`'s collision hulls) reuse them.
 """
 
 from __future__ import annotations
@@ -60,14 +63,28 @@ def build_params(**build_kwargs: Any) -> dict[str, Any]:
 
 def cache_key(mesh: trimesh.Trimesh, **build_kwargs: Any) -> str:
   """Hex SHA-256 identifying the model `build_object_model(mesh, **build_kwargs)` would produce."""
-  digest = hashlib.sha256()
   header = {'format': CACHE_FORMAT_VERSION, 'params': build_params(**build_kwargs)}
+  return mesh_content_key(header, mesh)
+
+
+def content_key(header: dict[str, Any], *arrays: np.ndarray) -> str:
+  """Hex SHA-256 over a JSON-serialisable ``header`` and the dtype, shape and bytes of each array.
+
+  The generic key behind every dexjax on-disk cache: put a format version and every parameter that
+  affects the cached result into ``header``.
+  """
+  digest = hashlib.sha256()
   digest.update(json.dumps(header, sort_keys=True).encode())
-  for array in (np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)):
+  for array in arrays:
     array = np.ascontiguousarray(array)
     digest.update(f'{array.dtype.str}{array.shape}'.encode())
     digest.update(array.tobytes())
   return digest.hexdigest()
+
+
+def mesh_content_key(header: dict[str, Any], mesh: trimesh.Trimesh) -> str:
+  """`content_key` of ``header`` and a mesh's (V, 3) float64 vertices and (F, 3) int64 faces."""
+  return content_key(header, np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64))
 
 
 def cached_object_model(
@@ -136,14 +153,26 @@ def _read(path: str, key: str, params: dict[str, Any]) -> ObjectModel:
 
 
 def _write_atomic(path: str, key: str, model: ObjectModel) -> None:
-  """Writes ``model`` to ``path`` as .npz via a temporary file in the same directory and `os.replace`."""
-  directory = os.path.dirname(path)
+  """Writes ``model`` to ``path`` as .npz (with its key) via `atomic_write_npz`."""
+  atomic_write_npz(path, {'cache_key': np.array(key), **{f: np.asarray(getattr(model, f)) for f in _FIELDS}})
+
+
+def atomic_write_npz(path: str | os.PathLike[str], arrays: dict[str, np.ndarray]) -> None:
+  """Writes ``arrays`` to ``path`` as an uncompressed .npz so that readers never see a partial file.
+
+  The data go to a temporary file in the same directory (created if missing), are flushed to disk and
+  then moved over ``path`` with `os.replace`; on any error the temporary file is removed.
+
+  Raises:
+    OSError: the directory cannot be created or written.
+  """
+  path = os.fspath(path)
+  directory = os.path.dirname(path) or '.'
   os.makedirs(directory, exist_ok=True)
-  arrays = {f: np.asarray(getattr(model, f)) for f in _FIELDS}
   fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix='.npz', dir=directory)
   try:
     with os.fdopen(fd, 'wb') as f:
-      np.savez(f, cache_key=np.array(key), **arrays)
+      np.savez(f, **arrays)
       f.flush()
       os.fsync(f.fileno())
     os.replace(tmp, path)

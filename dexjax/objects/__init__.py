@@ -1,7 +1,40 @@
-"""Objects to grasp: built-in test meshes and the object-spec resolver (``'builtin:NAME'`` or a file)."""
+"""Objects to grasp: built-in test meshes, procedural object sets and the object-spec resolver.
+
+Specs: ``'builtin:NAME'``, ``'procedural:L{level}/{index}[@{seed}]'`` or a mesh file path.
+"""
 
 from dexjax.objects.builtin import BUILTIN_OBJECTS
 from dexjax.objects.builtin import BUILTIN_PREFIX
 from dexjax.objects.builtin import builtin_mesh
 from dexjax.objects.builtin import load_object_model
 from dexjax.objects.builtin import resolve_mesh
+from dexjax.objects.procedural import MAX_EXTENT
+from dexjax.objects.procedural import MAX_FACES
+from dexjax.objects.procedural import MIN_EXTENT
+from dexjax.objects.procedural import PROCEDURAL_LEVELS
+from dexjax.objects.procedural import PROCEDURAL_PREFIX
+from dexjax.objects.procedural import parse_procedural_spec
+from dexjax.objects.procedural import procedural_families
+from dexjax.objects.procedural import procedural_mesh
+from dexjax.objects.procedural import procedural_mesh_problems
+from dexjax.objects.procedural import procedural_params
+from dexjax.objects.procedural import procedural_spec
+from dexjax.objects.procedural import procedural_specs
+from dexjax.objects.collision import CONVEX_SOLIDITY
+from dexjax.objects.collision import cached_collision_hulls
+from dexjax.objects.collision import collision_hulls
+from dexjax.objects.collision import hulls_cache_key
+from dexjax.objects.folder import FolderReport
+from dexjax.objects.folder import LoadedObject
+from dexjax.objects.folder import PreparedObject
+from dexjax.objects.folder import Rejection
+from dexjax.objects.folder import load_mesh_folder
+from dexjax.objects.folder import prepare_object
+
+
+def __getattr__(name: str):
+  """Lazily provides `save_contact_sheet` (imports matplotlib only when previews are drawn)."""
+  if name == 'save_contact_sheet':
+    from dexjax.objects.preview import save_contact_sheet  # pylint: disable=g-import-not-at-top
+    return save_contact_sheet
+  raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
