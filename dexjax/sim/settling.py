@@ -1,0 +1,281 @@
+"""Physics settling of dropped heaps: one interface, two backends.
+
+`settle` simulates each heap from its drop poses until every object rests (centre-of-mass speed below
+0.005 m/s and angular speed below 0.1 rad/s, checked after every step) or 500 steps have run (seed, "State
+Distribution"), and returns the final poses with per-object flags: *left the bin* and *never settled*. Objects
+are flagged, never dropped.
+
+Backends:
+
+* ``'rollout'``: the MuJoCo C engine through `mujoco.rollout`, one `MjData` per heap (heaps with different
+  meshes must not share an `MjData`: that silently produced NaN states), heaps spread over ``nthread`` Python
+  threads (MuJoCo releases the GIL), ``chunk_steps`` steps per call, only unsettled heaps continued; the
+  solver warm start is carried across calls, so chunking does not change the trajectory. Each heap is
+  simulated on its own, so the same states give bitwise the same result whatever the thread count.
+* ``'mjx'``: MuJoCo MJX, ``jax.jit(jax.vmap(...))`` over heaps that share one object set (see
+  `dexjax.sim.mjx_backend`), run in a pinned child process on CPU.
+* ``'auto'``: ``'rollout'`` when ``jax.default_backend() == 'cpu'`` (the C engine is ~100x faster there),
+  ``'mjx'`` on GPU/TPU.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import jax
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import rollout as mj_rollout
+
+from dexjax.sim.bodies import HeapObject
+from dexjax.sim.heap import HeapState
+from dexjax.sim.scene import SettleSettings, build_heap_model, drop_poses, heap_slots, initial_qpos
+
+BACKENDS = ('auto', 'rollout', 'mjx')
+_BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                       mujoco.mjtWarning.mjWARN_BADQACC)
+
+
+@struct.dataclass
+class SettleResult:
+  """Settled heaps, padded like the input states: B heaps of P slots (NumPy arrays).
+
+  Attributes:
+    poses: (B, P, 7) float64 final object-frame poses in the world frame: position (metres) then unit
+      quaternion (w, x, y, z); padded slots hold zeros and the identity quaternion.
+    centers: (B, P, 3) float64 final centre-of-mass positions, world frame, metres.
+    velocities: (B, P, 6) float64 final centre-of-mass velocity (m/s) and angular velocity (rad/s), world frame.
+    initial_poses: (B, P, 7) float64 drop poses actually simulated (intersecting drops raised, see
+      `dexjax.sim.drop_poses`).
+    mask: (B, P) bool, the heap's objects (a copy of ``states.mask``).
+    left_bin: (B, P) bool, the centre of mass ended outside the bin's inner box or below its floor.
+    never_settled: (B, P) bool, the object still moved when its heap stopped at ``max_steps`` (or the heap
+      diverged).
+    steps: (B,) int32 steps simulated per heap (the first step at which every object rested, or max_steps).
+    settled: (B,) bool, every object of the heap rested (``steps <= max_steps`` and no ``never_settled``).
+    diverged: (B,) bool, the simulation produced NaN or MuJoCo's bad-state warnings (poses are not valid).
+    backend: the backend that ran (``'rollout'`` or ``'mjx'``).
+  """
+
+  poses: np.ndarray
+  centers: np.ndarray
+  velocities: np.ndarray
+  initial_poses: np.ndarray
+  mask: np.ndarray
+  left_bin: np.ndarray
+  never_settled: np.ndarray
+  steps: np.ndarray
+  settled: np.ndarray
+  diverged: np.ndarray
+  backend: str = struct.field(pytree_node=False, default='rollout')
+
+
+class SettleTimeout(TimeoutError):
+  """The MJX child process did not finish within ``SettleSettings.mjx_timeout`` seconds and was killed."""
+
+
+def rotate(quaternion: Any, vector: Any, xp: Any = np) -> Any:
+  """Rotates vectors (..., 3) by unit quaternions (..., 4) (w, x, y, z); ``xp`` is `numpy` or `jax.numpy`."""
+  w, r = quaternion[..., :1], quaternion[..., 1:]
+  t = 2.0 * xp.cross(r, vector)
+  return vector + w * t + xp.cross(r, t)
+
+
+def object_speeds(qpos: Any, qvel: Any, centers_of_mass: Any, xp: Any = np) -> tuple[Any, Any]:
+  """Centre-of-mass and angular speeds of free bodies whose frame is the object frame.
+
+  Args:
+    qpos: (..., m, 7) free-joint positions: frame origin (world, metres) and quaternion (w, x, y, z).
+    qvel: (..., m, 6) free-joint velocities: origin velocity (world, m/s), angular velocity (body, rad/s).
+    centers_of_mass: (m, 3) centres of mass in the object frames, metres.
+    xp: `numpy` or `jax.numpy`.
+
+  Returns:
+    (linear (..., m) m/s, angular (..., m) rad/s).
+  """
+  omega = qvel[..., 3:]
+  v_com = qvel[..., :3] + rotate(qpos[..., 3:], xp.cross(omega, centers_of_mass), xp)
+  return xp.linalg.norm(v_com, axis=-1), xp.linalg.norm(omega, axis=-1)
+
+
+def resting(qpos: Any, qvel: Any, centers_of_mass: Any, settings: SettleSettings, xp: Any = np) -> Any:
+  """(..., m) bool: each object's speeds are below the settling thresholds (shapes as `object_speeds`)."""
+  lin, ang = object_speeds(qpos, qvel, centers_of_mass, xp)
+  return (lin < settings.linear_speed_tol) & (ang < settings.angular_speed_tol)
+
+
+def _batched(states: HeapState) -> HeapState:
+  """NumPy copy of ``states`` with a leading batch axis (added when a single heap is given)."""
+  states = jax.device_get(states)
+  states = jax.tree.map(np.asarray, states)
+  if states.mask.ndim == 1:
+    states = jax.tree.map(lambda x: x[None], states)
+  if states.mask.ndim != 2:
+    raise ValueError(f'settle: states.mask: expected shape (P,) or (B, P), got {states.mask.shape}')
+  return states
+
+
+def _heap(states: HeapState, b: int) -> HeapState:
+  return jax.tree.map(lambda x: x[b], states)
+
+
+def _coms(objects: Sequence[HeapObject], state: HeapState) -> np.ndarray:
+  """(m, 3) centres of mass of one heap's bodies, object frames, in `heap_slots` order."""
+  ids = np.asarray(state.object_ids)
+  return np.stack([objects[int(ids[s])].center_of_mass for s in heap_slots(state)])
+
+
+def _check_ids(objects: Sequence[HeapObject], states: HeapState) -> None:
+  ids = states.object_ids[states.mask]
+  bad = sorted(set(int(i) for i in ids if not 0 <= i < len(objects)))
+  if bad:
+    raise ValueError(f'settle: states.object_ids: expected ids in [0, {len(objects)}) (the available objects), '
+                     f'got {bad}')
+
+
+def finish(objects: Sequence[HeapObject], states: HeapState, qpos: list[np.ndarray], qvel: list[np.ndarray],
+           steps: np.ndarray, diverged: np.ndarray, settings: SettleSettings, backend: str) -> SettleResult:
+  """Pads per-heap final states into a `SettleResult` and computes the flags (shared by both backends).
+
+  Args:
+    objects, states: as given to `settle` (states batched, NumPy).
+    qpos, qvel: per heap, (m_b, 7) and (m_b, 6) final free-joint states in `heap_slots` order.
+    steps: (B,) steps simulated; diverged: (B,) bool.
+  """
+  batch, pad = states.mask.shape
+  poses = np.zeros((batch, pad, 7))
+  poses[..., 3] = 1.0
+  centers = np.zeros((batch, pad, 3))
+  velocities = np.zeros((batch, pad, 6))
+  initial = np.zeros((batch, pad, 7))
+  initial[..., 3] = 1.0
+  never = np.zeros((batch, pad), bool)
+  diverged = np.asarray(diverged, bool).copy()
+  hx, hy = 0.5 * settings.bin.inner_size[0], 0.5 * settings.bin.inner_size[1]
+  for b in range(batch):
+    state = _heap(states, b)
+    slots, coms = heap_slots(state), _coms(objects, state)
+    q, v = np.asarray(qpos[b], np.float64).reshape(-1, 7), np.asarray(qvel[b], np.float64).reshape(-1, 6)
+    diverged[b] |= not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)))
+    quat = q[:, 3:] / np.maximum(np.linalg.norm(q[:, 3:], axis=1, keepdims=True), 1e-12)
+    poses[b, slots] = np.concatenate([q[:, :3], quat], axis=1)
+    centers[b, slots] = q[:, :3] + rotate(quat, coms)
+    velocities[b, slots, :3] = v[:, :3] + rotate(quat, np.cross(v[:, 3:], coms))
+    velocities[b, slots, 3:] = rotate(quat, v[:, 3:])
+    never[b, slots] = diverged[b] | ~resting(q, v, coms, settings)
+    positions, quats = drop_poses(objects, state, settings)
+    initial[b] = np.concatenate([positions, quats], axis=1)
+  mask = states.mask.astype(bool)
+  left = mask & ((np.abs(centers[..., 0]) > hx) | (np.abs(centers[..., 1]) > hy) | (centers[..., 2] < 0.0)
+                 | ~np.all(np.isfinite(centers), axis=-1))
+  never &= mask
+  settled = ~np.any(never, axis=1) & ~diverged
+  return SettleResult(poses=poses, centers=centers, velocities=velocities, initial_poses=initial, mask=mask,
+                      left_bin=left, never_settled=never, steps=np.asarray(steps, np.int32), settled=settled,
+                      diverged=diverged, backend=backend)
+
+
+class _RolloutHeap:
+  """One heap on the C engine: its own model, `MjData`, state vector and warm start."""
+
+  def __init__(self, objects: Sequence[HeapObject], state: HeapState, settings: SettleSettings):
+    self.model = build_heap_model(objects, state, settings)
+    self.data = mujoco.MjData(self.model)
+    self.data.qpos[:] = initial_qpos(objects, state, settings)
+    self.coms = _coms(objects, state)
+    self.spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    self.state = np.empty(mujoco.mj_stateSize(self.model, self.spec))
+    mujoco.mj_getState(self.model, self.data, self.state, self.spec)
+    self.warmstart = np.zeros(self.model.nv)
+    self.steps, self.done, self.diverged = 0, False, False
+
+  def advance(self, nstep: int, settings: SettleSettings) -> None:
+    """Simulates up to ``nstep`` steps, stopping at the first step at which every object rests."""
+    m = self.model
+    traj, _ = mj_rollout.rollout(m, self.data, self.state[None], nstep=nstep,
+                                 initial_warmstart=self.warmstart[None])
+    traj = traj[0]
+    qpos = traj[:, 1:1 + m.nq].reshape(nstep, -1, 7)
+    qvel = traj[:, 1 + m.nq:1 + m.nq + m.nv].reshape(nstep, -1, 6)
+    warnings = sum(self.data.warning[w].number for w in _BAD_STATE_WARNINGS)
+    if warnings or not np.all(np.isfinite(traj)):
+      self.diverged, self.done = True, True
+      self.state, self.steps = traj[-1], self.steps + nstep
+      return
+    rest = np.all(resting(qpos, qvel, self.coms, settings), axis=1)
+    first = int(np.argmax(rest)) if rest.any() else -1
+    if first >= 0:
+      self.state, self.steps, self.done = traj[first], self.steps + first + 1, True
+    else:
+      self.state, self.steps = traj[-1], self.steps + nstep
+      self.warmstart = np.array(self.data.qacc_warmstart)
+
+  def final(self) -> tuple[np.ndarray, np.ndarray]:
+    m = self.model
+    return self.state[1:1 + m.nq], self.state[1 + m.nq:1 + m.nq + m.nv]
+
+
+def _settle_rollout(objects: Sequence[HeapObject], states: HeapState, settings: SettleSettings) -> SettleResult:
+  batch = states.mask.shape[0]
+  nthread = settings.nthread or os.cpu_count() or 1
+  qpos, qvel, steps, diverged = [], [], [], []
+  with ThreadPoolExecutor(max_workers=nthread) as pool:
+    for start in range(0, batch, settings.rollout_wave):
+      wave = range(start, min(start + settings.rollout_wave, batch))
+      heaps = list(pool.map(lambda b: _RolloutHeap(objects, _heap(states, b), settings), wave))
+      elapsed = 0
+      while elapsed < settings.max_steps:
+        active = [h for h in heaps if not h.done]
+        if not active:
+          break
+        nstep = min(settings.chunk_steps, settings.max_steps - elapsed)
+        list(pool.map(lambda h: h.advance(nstep, settings), active))
+        elapsed += nstep
+      for h in heaps:
+        q, v = h.final()
+        qpos.append(q)
+        qvel.append(v)
+        steps.append(h.steps)
+        diverged.append(h.diverged)
+  return finish(objects, states, qpos, qvel, np.array(steps), np.array(diverged), settings, 'rollout')
+
+
+def default_backend() -> str:
+  """The backend ``'auto'`` resolves to: ``'rollout'`` on CPU, ``'mjx'`` on an accelerator."""
+  return 'rollout' if jax.default_backend() == 'cpu' else 'mjx'
+
+
+def settle(objects: Sequence[HeapObject], states: HeapState, *, backend: str = 'auto',
+           settings: SettleSettings = SettleSettings()) -> SettleResult:
+  """Drops and settles heaps; returns final poses and per-object flags.
+
+  Args:
+    objects: the N available objects (``states.object_ids`` index into this sequence).
+    states: `HeapState` with a leading batch axis B (e.g. from ``jax.vmap(sample_heap_state)``), or a single
+      heap (then B = 1).
+    backend: ``'auto'``, ``'rollout'`` (MuJoCo C engine, threads) or ``'mjx'`` (MuJoCo MJX).
+    settings: physics, stopping criteria and backend options.
+
+  Returns:
+    A `SettleResult` (NumPy arrays, padded like ``states``).
+
+  Raises:
+    ValueError: unknown backend, bad settings, or object ids outside range(len(objects)).
+    SettleTimeout: the ``mjx`` child process exceeded ``settings.mjx_timeout``.
+  """
+  if backend not in BACKENDS:
+    raise ValueError(f"settle: backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
+  settings.validate()
+  states = _batched(states)
+  _check_ids(objects, states)
+  if backend == 'auto':
+    backend = default_backend()
+  if backend == 'rollout':
+    return _settle_rollout(objects, states, settings)
+  from dexjax.sim import mjx_backend  # imports mujoco.mjx only when needed
+  raw = mjx_backend.run(objects, states, settings)
+  return finish(objects, states, raw['qpos'], raw['qvel'], raw['steps'], raw['diverged'], settings, 'mjx')
