@@ -1,11 +1,12 @@
 """dexjax: Dex-Net 4.0 rebuilt as a JAX library.
 
 Pure, composable ``jit``/``vmap`` functions for analytic grasp quality of parallel-jaw and suction grippers
-(soft-finger and compliant suction-ring contact models, robust Monte-Carlo wrench resistance), grasp samplers
-and object models. Every function works on a single item; batch with `jax.vmap`.
+(soft-finger and compliant suction-ring contact models, robust Monte-Carlo wrench resistance), grasp samplers,
+object models and object sets (`dexjax.objects`), and heaps of objects settled with MuJoCo (`dexjax.sim`).
+Every function works on a single item; batch with `jax.vmap`.
 """
 
-from dexjax import config, contacts, geometry, objects, quality, sampling
+from dexjax import config, contacts, geometry, objects, quality, sampling, sim
 from dexjax.config import ConfigError
 from dexjax.objects import BUILTIN_OBJECTS, builtin_mesh, load_object_model
 from dexjax.contacts import *  # noqa: F401,F403

@@ -30,6 +30,9 @@ from dexjax.objects.folder import PreparedObject
 from dexjax.objects.folder import Rejection
 from dexjax.objects.folder import load_mesh_folder
 from dexjax.objects.folder import prepare_object
+from dexjax.objects.sets import expand_object_sources
+from dexjax.objects.sets import load_object_set
+from dexjax.objects.sets import prepare_object_set
 
 
 def __getattr__(name: str):

@@ -86,14 +86,15 @@ class PreparedObject:
     name: the object's name (see `LoadedObject.name`).
     source: the mesh file it came from.
     mesh: the repaired mesh in metres.
-    model: its `ObjectModel` (signed distance grid, surface samples, mass properties).
+    model: its `ObjectModel` (signed distance grid, surface samples, mass properties); None when prepared
+      with ``model=False`` (collision geometry only, e.g. for settling heaps).
     hulls: convex collision pieces, each (V_i, 3) float64 vertices in metres (see
       `dexjax.objects.collision_hulls`).
   """
   name: str
   source: str
   mesh: trimesh.Trimesh
-  model: ObjectModel
+  model: ObjectModel | None
   hulls: tuple[np.ndarray, ...]
 
 
@@ -159,6 +160,7 @@ def prepare_object(
     max_hulls: int = 8,
     max_vertices: int = 64,
     convex_solidity: float = CONVEX_SOLIDITY,
+    model: bool = True,
     **build_kwargs: Any,
 ) -> PreparedObject:
   """Builds (or loads from the on-disk cache) a loaded object's `ObjectModel` and collision hulls.
@@ -169,6 +171,7 @@ def prepare_object(
       stored in it, hulls in its ``hulls/`` sub-directory.
     grid_size: signed distance grid resolution per axis (see `dexjax.geometry.build_object_model`).
     max_hulls, max_vertices, convex_solidity: see `dexjax.objects.collision_hulls`.
+    model: build the `ObjectModel` (False: only the collision hulls; ``PreparedObject.model`` is None).
     **build_kwargs: further `build_object_model` arguments (padding, num_surface_samples, seed);
       ``name`` defaults to the object's name.
 
@@ -176,10 +179,11 @@ def prepare_object(
     A `PreparedObject`.
   """
   build_kwargs.setdefault('name', loaded.name)
-  model = cached_object_model(loaded.mesh, cache_dir=cache_dir, grid_size=grid_size, **build_kwargs)
+  object_model = (cached_object_model(loaded.mesh, cache_dir=cache_dir, grid_size=grid_size, **build_kwargs)
+                  if model else None)
   hulls = cached_collision_hulls(loaded.mesh, cache_dir=cache_dir, max_hulls=max_hulls,
                                  max_vertices=max_vertices, convex_solidity=convex_solidity)
-  return PreparedObject(name=loaded.name, source=loaded.path, mesh=loaded.mesh, model=model, hulls=hulls)
+  return PreparedObject(name=loaded.name, source=loaded.path, mesh=loaded.mesh, model=object_model, hulls=hulls)
 
 
 def _candidate_files(root: str, recursive: bool) -> list[str]:

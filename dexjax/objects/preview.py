@@ -62,23 +62,30 @@ def save_contact_sheet(path: str | os.PathLike[str], *, levels: Sequence[int] = 
   figure.savefig(os.fspath(path), dpi=_DPI, format='png')
 
 
-def _light_direction() -> np.ndarray:
-  """(3,) unit light direction: towards the camera, raised and turned a little to its left."""
-  elevation, azimuth = np.radians(_ELEVATION + 25.0), np.radians(_AZIMUTH - 30.0)
+def _light_direction(elevation: float, azimuth: float) -> np.ndarray:
+  """(3,) unit light direction: towards a camera at (elevation, azimuth) degrees, raised and turned left."""
+  elevation, azimuth = np.radians(elevation + 25.0), np.radians(azimuth - 30.0)
   return np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
 
 
-def _shaded_colours(mesh: trimesh.Trimesh, colour: Sequence[float]) -> np.ndarray:
-  """(F, 4) RGBA face colours with Lambert shading by face normal."""
-  lambert = np.clip(np.asarray(mesh.face_normals) @ _light_direction(), 0.0, 1.0)
-  rgb = np.asarray(colour)[None, :] * (_AMBIENT + (1.0 - _AMBIENT) * lambert)[:, None]
+def shaded_colours(normals: np.ndarray, colours: np.ndarray | Sequence[float], *, elevation: float = _ELEVATION,
+                   azimuth: float = _AZIMUTH) -> np.ndarray:
+  """(F, 4) RGBA face colours with Lambert shading for a matplotlib camera at (elevation, azimuth) degrees.
+
+  Args:
+    normals: (F, 3) unit face normals, in the plotted frame.
+    colours: (3,) or (F, 3) base RGB colours in [0, 1].
+  """
+  lambert = np.clip(np.asarray(normals) @ _light_direction(elevation, azimuth), 0.0, 1.0)
+  rgb = np.broadcast_to(np.asarray(colours, np.float64), (len(lambert), 3))
+  rgb = rgb * (_AMBIENT + (1.0 - _AMBIENT) * lambert)[:, None]
   return np.c_[np.clip(rgb, 0.0, 1.0), np.ones(len(rgb))]
 
 
 def _draw_mesh(axes: matplotlib.axes.Axes, mesh: trimesh.Trimesh, colour: Sequence[float]) -> None:
   """Draws ``mesh`` shaded into 3-D ``axes`` with equal scales and no axis decorations."""
   triangles = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]
-  colours = _shaded_colours(mesh, colour)  # Edges in the face colour hide anti-aliasing seams.
+  colours = shaded_colours(mesh.face_normals, colour)  # Edges in the face colour hide anti-aliasing seams.
   axes.add_collection3d(Poly3DCollection(triangles, facecolors=colours, edgecolors=colours, linewidths=0.2))
   half = 0.5 * float(np.max(mesh.extents))
   axes.set_xlim(-half, half)

@@ -6,17 +6,27 @@ its convex pieces into a rigid body; `settle` drops and settles batches of heaps
 See ``docs/heaps.md``.
 """
 
-from dexjax.sim.bodies import DEFAULT_DENSITY, DEFAULT_MASS_RANGE, HeapObject, heap_object, validate_hull
+from dexjax.sim.bodies import (DEFAULT_DENSITY, DEFAULT_MASS_RANGE, HeapObject, heap_object, heap_objects,
+                               validate_hull)
 from dexjax.sim.heap import (MAX_OBJECTS, Bin, HeapDistribution, HeapState, sample_friction, sample_heap_state,
-                             sample_object_count, sample_uniform_quaternion, truncated_poisson_pmf)
+                             sample_heap_states, sample_object_count, sample_uniform_quaternion, truncated_poisson_pmf)
 from dexjax.sim.scene import SettleSettings, build_heap_model, drop_poses, heap_slots, initial_qpos, quat_to_matrix
 from dexjax.sim.settling import (BACKENDS, SettleResult, SettleTimeout, default_backend, object_speeds, resting, rotate,
                                settle)
 
 __all__ = [
-    "DEFAULT_DENSITY", "DEFAULT_MASS_RANGE", "HeapObject", "heap_object", "validate_hull", "MAX_OBJECTS", "Bin",
-    "HeapDistribution", "HeapState", "sample_friction", "sample_heap_state", "sample_object_count",
-    "sample_uniform_quaternion", "truncated_poisson_pmf", "SettleSettings", "build_heap_model", "drop_poses",
-    "heap_slots", "initial_qpos", "quat_to_matrix", "BACKENDS", "SettleResult", "SettleTimeout", "default_backend",
-    "object_speeds", "resting", "rotate", "settle",
+    "DEFAULT_DENSITY", "DEFAULT_MASS_RANGE", "HeapObject", "heap_object", "heap_objects", "validate_hull",
+    "MAX_OBJECTS", "Bin", "HeapDistribution", "HeapState", "sample_friction", "sample_heap_state",
+    "sample_heap_states", "sample_object_count", "sample_uniform_quaternion", "truncated_poisson_pmf",
+    "SettleSettings", "build_heap_model", "drop_poses", "heap_slots", "initial_qpos", "quat_to_matrix",
+    "BACKENDS", "SettleResult", "SettleTimeout", "default_backend", "HeapRow", "posed_meshes",
+    "save_heap_sheet", "procedural_heap_rows", "object_speeds", "resting", "rotate", "settle",
 ]
+
+
+def __getattr__(name: str):
+  """Lazily provides the heap pictures (`save_heap_sheet`, ...; imports matplotlib only when drawing)."""
+  if name in ('HeapRow', 'posed_meshes', 'save_heap_sheet', 'procedural_heap_rows'):
+    from dexjax.sim import preview  # pylint: disable=g-import-not-at-top
+    return getattr(preview, name)
+  raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

@@ -14,6 +14,8 @@ clipped the inertia is scaled by the same factor (same shape, different density)
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
+from typing import Protocol
 
 import numpy as np
 import trimesh
@@ -126,3 +128,24 @@ def heap_object(mesh: trimesh.Trimesh, hulls: tuple[np.ndarray, ...] | list[np.n
     hulls = (np.asarray(mesh.convex_hull.vertices, np.float64),)
   return HeapObject(name=name, hulls=tuple(hulls), mass=clipped,
                     center_of_mass=np.asarray(solid.center_mass, np.float64), inertia=inertia)
+
+
+class _WithHulls(Protocol):
+  """Anything with a name, a mesh and collision hulls, e.g. `dexjax.objects.PreparedObject`."""
+  name: str
+  mesh: trimesh.Trimesh
+  hulls: tuple[np.ndarray, ...]
+
+
+def heap_objects(prepared: Iterable[_WithHulls], *, density: float = DEFAULT_DENSITY,
+                 mass_range: tuple[float, float] = DEFAULT_MASS_RANGE) -> list[HeapObject]:
+  """`heap_object` for each prepared object (e.g. from `dexjax.objects.prepare_object_set`), in order.
+
+  Args:
+    prepared: objects with ``name``, ``mesh`` (metres) and ``hulls`` (convex pieces).
+    density, mass_range: see `heap_object`.
+
+  Returns:
+    One `HeapObject` per item; ``HeapState.object_ids`` index into this list.
+  """
+  return [heap_object(p.mesh, p.hulls, density=density, mass_range=mass_range, name=p.name) for p in prepared]

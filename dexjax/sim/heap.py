@@ -23,6 +23,7 @@ plus a mask), so it `jit`s and `vmap`s::
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -200,3 +201,21 @@ def sample_heap_state(key: jax.Array, num_available: int,
   friction = jnp.where(mask, friction, 0.0).astype(jnp.float32)
   return HeapState(object_ids=ids, mask=mask, positions=positions, quaternions=quats.astype(jnp.float32),
                    friction=friction)
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def sample_heap_states(key: jax.Array, num_heaps: int, num_available: int,
+                       dist: HeapDistribution = HeapDistribution()) -> HeapState:
+  """``num_heaps`` independent heap states: `sample_heap_state` over ``jax.random.split(key, num_heaps)``.
+
+  Args:
+    key: a `jax.random` key.
+    num_heaps: static batch size B.
+    num_available: static number N of available objects.
+    dist: the distribution's parameters.
+
+  Returns:
+    A `HeapState` whose arrays have a leading axis of B heaps.
+  """
+  keys = jax.random.split(key, num_heaps)
+  return jax.vmap(lambda k: sample_heap_state(k, num_available, dist))(keys)

@@ -73,6 +73,15 @@ class SettleResult:
   diverged: np.ndarray
   backend: str = struct.field(pytree_node=False, default='rollout')
 
+  def summary(self) -> dict[str, Any]:
+    """Counts over the batch (plain Python numbers, JSON-ready): heaps, objects, settled heaps, objects that
+    left the bin or never settled, diverged heaps, and the mean and largest steps."""
+    return {'backend': self.backend, 'heaps': int(len(self.steps)), 'objects': int(self.mask.sum()),
+            'settled_heaps': int(self.settled.sum()), 'left_bin': int(self.left_bin.sum()),
+            'never_settled': int(self.never_settled.sum()), 'diverged_heaps': int(self.diverged.sum()),
+            'mean_steps': float(np.mean(self.steps)) if len(self.steps) else 0.0,
+            'max_steps': int(np.max(self.steps)) if len(self.steps) else 0}
+
 
 class SettleTimeout(TimeoutError):
   """The MJX child process did not finish within ``SettleSettings.mjx_timeout`` seconds and was killed."""
