@@ -1,7 +1,7 @@
 """Heap settling throughput, MuJoCo C engine (`rollout`) vs. MJX, one JSON object on stdout.
 
   python benchmarks/heap_throughput.py [--quick] [--rollout-heaps 64] [--repeats 3] [--mjx-timeout-5 600]
-                                       [--mjx-timeout-10 1400]
+                                       [--mjx-timeout-10 2700]
 
 Heaps of 5 and 10 objects are drawn from the Dex-Net 4.0 distribution with a fixed object set per count (so
 MJX compiles once per count and batch size, and both backends settle the very same heaps): the built-in cube,
@@ -14,6 +14,10 @@ scale for 10 objects. ``heaps_per_s`` counts settled-or-stopped heaps (500 steps
   after compilation (``compile_s`` is reported separately). Each object count runs in its own child process
   pinned to one CPU core (the deadlock guard; the two children side by side on different cores, after the
   rollout runs) with a timeout; a timeout is reported as ``"status": "timeout"``.
+
+``rollout_procedural``: ``--rollout-heaps`` heaps per difficulty level drawn from the level's first 30
+procedural objects (cached convex decompositions, prepared before timing) with the seed's object count
+(Poisson(5) truncated to [3, 10]), the C engine only.
 
 ``ratio_rollout_over_mjx`` divides rollout heaps/s by the best MJX heaps/s at the same object count. The machine
 is shared and noisy: compare ratios, not absolute figures. ``--quick``: 5 objects only for MJX (batches 1 and
@@ -36,7 +40,7 @@ import numpy as np
 import trimesh
 
 import dexjax.sim as sim
-from dexjax.objects import builtin_mesh
+from dexjax.objects import builtin_mesh, load_object_set, prepare_object_set
 from dexjax.sim import mjx_backend
 from dexjax.sim.settling import finish
 
@@ -80,16 +84,30 @@ def _summary(result: sim.SettleResult) -> dict:
           'left_bin': int(result.left_bin.sum()), 'diverged': int(result.diverged.sum())}
 
 
-def bench_rollout(count: int, num_heaps: int, repeats: int) -> dict:
-  objs, st = objects(count), states(count, num_heaps)
+def _time_rollout(objs: list[sim.HeapObject], st: sim.HeapState, repeats: int) -> tuple[float, sim.SettleResult]:
+  """(median seconds, last result) of ``repeats`` C-engine settles of the same heaps."""
   times, result = [], None
   for _ in range(repeats):
     t = time.perf_counter()
     result = sim.settle(objs, st, backend='rollout')
     times.append(time.perf_counter() - t)
-  seconds = float(np.median(times))
+  return float(np.median(times)), result
+
+
+def bench_rollout(count: int, num_heaps: int, repeats: int) -> dict:
+  seconds, result = _time_rollout(objects(count), states(count, num_heaps), repeats)
   return {'heaps': num_heaps, 'threads': os.cpu_count(), 'seconds_median': seconds,
           'heaps_per_s': num_heaps / seconds, **_summary(result)}
+
+
+def bench_procedural(level: int, num_heaps: int, repeats: int) -> dict:
+  prepared, rejected = prepare_object_set(load_object_set([f'procedural:L{level}/0:30']), model=False)
+  objs = sim.heap_objects(prepared)
+  st = jax.tree.map(np.asarray, sim.sample_heap_states(jax.random.key(level), num_heaps, len(objs)))
+  seconds, result = _time_rollout(objs, st, repeats)
+  return {'heaps': num_heaps, 'objects': int(result.mask.sum()), 'rejected_objects': len(rejected),
+          'seconds_median': seconds, 'heaps_per_s': num_heaps / seconds,
+          'never_settled_objects': int(result.never_settled.sum()), **_summary(result)}
 
 
 def mjx_child(count: int, batches: list[int]) -> None:
@@ -146,7 +164,7 @@ def main() -> None:
   ap.add_argument('--rollout-heaps', type=int, default=64)
   ap.add_argument('--repeats', type=int, default=3)
   ap.add_argument('--mjx-timeout-5', type=float, default=600.0)
-  ap.add_argument('--mjx-timeout-10', type=float, default=1400.0)
+  ap.add_argument('--mjx-timeout-10', type=float, default=2700.0)
   ap.add_argument('--mjx-child', type=int, default=None, help=argparse.SUPPRESS)
   ap.add_argument('--batches', default='1,16,64', help=argparse.SUPPRESS)
   args = ap.parse_args()
@@ -159,11 +177,15 @@ def main() -> None:
       'benchmark': 'heap_throughput', 'quick': args.quick,
       'machine': {'cpus': os.cpu_count(), 'platform': platform.platform(), 'python': platform.python_version()},
       'versions': {'jax': jax.__version__, 'mujoco': __import__('mujoco').__version__},
-      'settings': {'timestep_s': 0.004, 'max_steps': 500, 'linear_speed_tol': 0.005, 'angular_speed_tol': 0.1},
-      'rollout': {}, 'mjx': {},
+      'settings': {k: getattr(sim.SettleSettings(), k) for k in (
+          'timestep', 'max_steps', 'linear_speed_tol', 'angular_speed_tol', 'impratio', 'rolling_friction',
+          'contact_timeconst')},
+      'rollout': {}, 'rollout_procedural': {}, 'mjx': {},
   }
   for count in counts:
     report['rollout'][str(count)] = bench_rollout(count, args.rollout_heaps, args.repeats)
+  for level in (1, 2, 3):
+    report['rollout_procedural'][f'L{level}'] = bench_procedural(level, args.rollout_heaps, args.repeats)
   mjx_plan = {5: [1, 16]} if args.quick else {5: [1, 16, 64], 10: [1, 16, 64]}
   timeouts = {5: args.mjx_timeout_5, 10: args.mjx_timeout_10}
   # One child per object count, each pinned to its own core, run side by side after the rollout runs.

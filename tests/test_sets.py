@@ -129,3 +129,15 @@ def test_sim_cli_settle(tmp_path, capsys, monkeypatch):
   assert sim_main(['settle', 'builtin:cube', '--heaps', '2']) == 2  # fewer than 3 objects
   assert 'at least 3' in capsys.readouterr().err
   assert sim_main(['settle', 'procedural:L9/0:3']) == 2
+
+
+def test_sim_cli_preview(tmp_path, capsys, monkeypatch):
+  monkeypatch.setenv('DEXJAX_CACHE', str(tmp_path / 'cache'))
+  out = tmp_path / 'heaps.png'
+  assert sim_main(['preview', str(out), '--levels', '1', '--heaps-per-level', '2', '--pool', '4']) == 0
+  printed = capsys.readouterr().out
+  assert 'level 1: 2 heaps' in printed and f'wrote {out}' in printed
+  from PIL import Image
+  assert Image.open(out).size == (600, 300)
+  assert sim_main(['preview', str(out), '--levels', '4']) == 2
+  assert sim_main(['preview', str(out), '--pool', '2']) == 2  # fewer objects than a heap needs

@@ -57,10 +57,6 @@ def settled(objects, states):
   return sim.settle(objects, states, backend="rollout")
 
 
-def _heap(states, b):
-  return jax.tree.map(lambda x: np.asarray(x)[b], states)
-
-
 def _min_contact_distance(objects, state, poses) -> float:
   """Smallest signed contact distance (negative: penetration) of a heap at ``poses`` (P, 7), C engine."""
   model = sim.build_heap_model(objects, state)
@@ -105,7 +101,7 @@ def test_heaps_rest_inside_the_bin_or_are_flagged(objects, states, settled):
 
 def test_no_interpenetration(objects, states, settled):
   for b in range(16):
-    state = _heap(states, b)
+    state = sim.select_heap(states, b)
     assert _min_contact_distance(objects, state, settled.poses[b]) > -PENETRATION_TOL
     # The drop poses themselves are collision-free (intersecting drops are raised).
     assert _min_contact_distance(objects, state, settled.initial_poses[b]) == np.inf
@@ -182,7 +178,7 @@ def test_mjx_and_rollout_agree():
     assert r.settled.all() and not r.left_bin.any() and not r.diverged.any()
     assert np.all(np.linalg.norm(r.velocities[..., :3], axis=-1) < settings.linear_speed_tol)
   for b in range(4):
-    assert _min_contact_distance(objects, _heap(states, b), m.poses[b]) > -PENETRATION_TOL
+    assert _min_contact_distance(objects, sim.select_heap(states, b), m.poses[b]) > -PENETRATION_TOL
   # Same statistics of the resting heaps. Each object rests on one of its faces (centre 2, 3 or 4 cm high, more
   # when stacked), and which face is chaotic, so compare means with a 3-standard-error tolerance of the
   # difference of two 12-object samples, and both at least the lowest possible resting height.
@@ -207,4 +203,4 @@ def test_with_convex_decomposition_hulls():
   r = sim.settle(objects, state, backend="rollout")
   assert not r.diverged.any() and not r.left_bin.any()
   for b in range(4):
-    assert _min_contact_distance(objects, _heap(state, b), r.poses[b]) > -PENETRATION_TOL
+    assert _min_contact_distance(objects, sim.select_heap(state, b), r.poses[b]) > -PENETRATION_TOL

@@ -9,7 +9,8 @@ See ``docs/heaps.md``.
 from dexjax.sim.bodies import (DEFAULT_DENSITY, DEFAULT_MASS_RANGE, HeapObject, heap_object, heap_objects,
                                validate_hull)
 from dexjax.sim.heap import (MAX_OBJECTS, Bin, HeapDistribution, HeapState, sample_friction, sample_heap_state,
-                             sample_heap_states, sample_object_count, sample_uniform_quaternion, truncated_poisson_pmf)
+                             sample_heap_states, sample_object_count, sample_uniform_quaternion, select_heap,
+                             truncated_poisson_pmf)
 from dexjax.sim.scene import SettleSettings, build_heap_model, drop_poses, heap_slots, initial_qpos, quat_to_matrix
 from dexjax.sim.settling import (BACKENDS, SettleResult, SettleTimeout, default_backend, object_speeds, resting, rotate,
                                settle)
@@ -17,7 +18,8 @@ from dexjax.sim.settling import (BACKENDS, SettleResult, SettleTimeout, default_
 __all__ = [
     "DEFAULT_DENSITY", "DEFAULT_MASS_RANGE", "HeapObject", "heap_object", "heap_objects", "validate_hull",
     "MAX_OBJECTS", "Bin", "HeapDistribution", "HeapState", "sample_friction", "sample_heap_state",
-    "sample_heap_states", "sample_object_count", "sample_uniform_quaternion", "truncated_poisson_pmf",
+    "sample_heap_states", "select_heap", "sample_object_count", "sample_uniform_quaternion",
+    "truncated_poisson_pmf",
     "SettleSettings", "build_heap_model", "drop_poses", "heap_slots", "initial_qpos", "quat_to_matrix",
     "BACKENDS", "SettleResult", "SettleTimeout", "default_backend", "HeapRow", "posed_meshes",
     "save_heap_sheet", "procedural_heap_rows", "object_speeds", "resting", "rotate", "settle",

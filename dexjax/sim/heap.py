@@ -115,6 +115,11 @@ class HeapState:
     return jnp.sum(self.mask, axis=-1).astype(jnp.int32)
 
 
+def select_heap(states: HeapState, b: int) -> HeapState:
+  """Heap ``b`` of a batched `HeapState` (the leading axis dropped)."""
+  return jax.tree.map(lambda x: x[b], states)
+
+
 def _count_bounds(num_available: int, dist: HeapDistribution) -> tuple[int, int]:
   """(low, high) bounds of the object count given the number of available objects; checks them."""
   if not isinstance(num_available, (int, np.integer)) or num_available < 1:

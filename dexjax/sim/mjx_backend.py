@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 
 from dexjax.sim.bodies import HeapObject
-from dexjax.sim.heap import HeapState
+from dexjax.sim.heap import HeapState, select_heap
 from dexjax.sim.scene import SettleSettings, build_heap_model, heap_slots, initial_qpos
 from dexjax.sim.settling import SettleTimeout, resting
 
@@ -47,10 +47,6 @@ from dexjax.sim.settling import SettleTimeout, resting
 def _group_key(state: HeapState) -> tuple[int, ...]:
   ids = np.asarray(state.object_ids)
   return tuple(int(ids[s]) for s in heap_slots(state))
-
-
-def _heap(states: HeapState, b: int) -> HeapState:
-  return jax.tree.map(lambda x: x[b], states)
 
 
 def _geom_friction(model: mujoco.MjModel, state: HeapState) -> np.ndarray:
@@ -130,14 +126,14 @@ def settle_in_process(objects: Sequence[HeapObject], states: HeapState, settings
   batch = states.mask.shape[0]
   groups: dict[tuple[int, ...], list[int]] = {}
   for b in range(batch):
-    groups.setdefault(_group_key(_heap(states, b)), []).append(b)
+    groups.setdefault(_group_key(select_heap(states, b)), []).append(b)
   qpos: list[Any] = [None] * batch
   qvel: list[Any] = [None] * batch
   steps = np.zeros(batch, np.int32)
   diverged = np.zeros(batch, bool)
   compile_seconds = run_seconds = 0.0
   for key, members in groups.items():
-    first = _heap(states, members[0])
+    first = select_heap(states, members[0])
     model = build_heap_model(objects, first, settings)
     ids = np.asarray(first.object_ids)
     coms = np.stack([objects[int(ids[s])].center_of_mass for s in heap_slots(first)])
@@ -146,8 +142,8 @@ def settle_in_process(objects: Sequence[HeapObject], states: HeapState, settings
     for start in range(0, len(members), size):
       chunk = members[start:start + size]
       padded = chunk + [chunk[-1]] * (size - len(chunk))
-      q0 = np.stack([initial_qpos(objects, _heap(states, b), settings) for b in padded]).astype(np.float32)
-      gf = np.stack([_geom_friction(model, _heap(states, b)) for b in padded]).astype(np.float32)
+      q0 = np.stack([initial_qpos(objects, select_heap(states, b), settings) for b in padded]).astype(np.float32)
+      gf = np.stack([_geom_friction(model, select_heap(states, b)) for b in padded]).astype(np.float32)
       if fn is None:
         fn, seconds = _compiled(objects, key, model, coms, settings, q0, gf)
         compile_seconds += seconds

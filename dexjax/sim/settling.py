@@ -32,7 +32,7 @@ from flax import struct
 from mujoco import rollout as mj_rollout
 
 from dexjax.sim.bodies import HeapObject
-from dexjax.sim.heap import HeapState
+from dexjax.sim.heap import HeapState, select_heap
 from dexjax.sim.scene import SettleSettings, build_heap_model, drop_poses, heap_slots, initial_qpos
 
 BACKENDS = ('auto', 'rollout', 'mjx')
@@ -128,10 +128,6 @@ def _batched(states: HeapState) -> HeapState:
   return states
 
 
-def _heap(states: HeapState, b: int) -> HeapState:
-  return jax.tree.map(lambda x: x[b], states)
-
-
 def _coms(objects: Sequence[HeapObject], state: HeapState) -> np.ndarray:
   """(m, 3) centres of mass of one heap's bodies, object frames, in `heap_slots` order."""
   ids = np.asarray(state.object_ids)
@@ -166,7 +162,7 @@ def finish(objects: Sequence[HeapObject], states: HeapState, qpos: list[np.ndarr
   diverged = np.asarray(diverged, bool).copy()
   hx, hy = 0.5 * settings.bin.inner_size[0], 0.5 * settings.bin.inner_size[1]
   for b in range(batch):
-    state = _heap(states, b)
+    state = select_heap(states, b)
     slots, coms = heap_slots(state), _coms(objects, state)
     q, v = np.asarray(qpos[b], np.float64).reshape(-1, 7), np.asarray(qvel[b], np.float64).reshape(-1, 6)
     diverged[b] |= not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)))
@@ -235,7 +231,7 @@ def _settle_rollout(objects: Sequence[HeapObject], states: HeapState, settings: 
   with ThreadPoolExecutor(max_workers=nthread) as pool:
     for start in range(0, batch, settings.rollout_wave):
       wave = range(start, min(start + settings.rollout_wave, batch))
-      heaps = list(pool.map(lambda b: _RolloutHeap(objects, _heap(states, b), settings), wave))
+      heaps = list(pool.map(lambda b: _RolloutHeap(objects, select_heap(states, b), settings), wave))
       elapsed = 0
       while elapsed < settings.max_steps:
         active = [h for h in heaps if not h.done]
