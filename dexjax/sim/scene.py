@@ -123,7 +123,7 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
       np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
-def _bin_boxes(b: Bin) -> list[tuple[np.ndarray, np.ndarray]]:
+def bin_boxes(b: Bin) -> list[tuple[np.ndarray, np.ndarray]]:
   """(centre (3,), half size (3,)) of the floor slab and the four walls, world frame, metres.
 
   The floor slab is only used to clear drop poses; the model's floor is the ground plane at z = 0.
@@ -161,7 +161,7 @@ def drop_poses(objects: Sequence[HeapObject], state: HeapState, settings: Settle
   """
   pad = np.asarray(state.mask).shape[0]
   positions, quats = np.zeros((pad, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (pad, 1))
-  boxes = [(c - s, c + s) for c, s in _bin_boxes(settings.bin)]
+  boxes = [(c - s, c + s) for c, s in bin_boxes(settings.bin)]
   ids, com_drop = np.asarray(state.object_ids), np.asarray(state.positions, np.float64)
   for slot in np.flatnonzero(np.asarray(state.mask, bool)):
     obj = objects[int(ids[slot])]
@@ -220,7 +220,7 @@ def build_heap_model(objects: Sequence[HeapObject], state: HeapState,
   opt.impratio = settings.impratio
   world = spec.worldbody
   world.add_geom(name='ground', type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], pos=[0, 0, 0])
-  for k, (centre, half) in enumerate(_bin_boxes(settings.bin)[1:]):
+  for k, (centre, half) in enumerate(bin_boxes(settings.bin)[1:]):
     world.add_geom(name=f'wall{k}', type=mujoco.mjtGeom.mjGEOM_BOX, pos=centre, size=half)
   for slot in slots:
     obj = objects[int(ids[slot])]
