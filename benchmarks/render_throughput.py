@@ -4,8 +4,8 @@
 
 Heaps of 5 and 10 objects (the built-in objects of ``heap_throughput.py``, full visual meshes, settled with
 `dexjax.sim.settle(backend='rollout')`) are rendered at 500 x 500 from ``--images`` cameras circling the bin
-(0.45 - 0.75 m from its centre, 35 - 80 degrees elevation; the first ``--raycast-images`` of them for ray
-casting). ``images_per_s`` is the median over ``--repeats`` passes per heap of the images per second of a pass
+(drawn from the seed's camera distribution, `dexjax.render.sample_camera`; the first ``--raycast-images`` of
+them for ray casting). ``images_per_s`` is the median over ``--repeats`` passes per heap of the images per second of a pass
 (depth and slot mask, the `DepthImage` returned). The scene is built and uploaded before timing:
 ``model_build_s`` (MuJoCo model compile, median over heaps) and ``first_render_s`` (GL upload of the meshes
 plus one image) are reported separately; ``object_pixel_fraction`` is the share of object pixels (mask >= 0)
@@ -28,7 +28,6 @@ import sys
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import trimesh
 
@@ -38,11 +37,11 @@ import heap_throughput  # pylint: disable=g-import-not-at-top,wrong-import-posit
 import dexjax.sim as sim  # pylint: disable=wrong-import-position
 from dexjax.objects import builtin_mesh  # pylint: disable=wrong-import-position
 from dexjax.render import rendering  # pylint: disable=wrong-import-position
-from dexjax.render.camera import Camera, Intrinsics, look_at  # pylint: disable=wrong-import-position
+from dexjax.render.camera import Camera  # pylint: disable=wrong-import-position
+from dexjax.render.distribution import sample_camera  # pylint: disable=wrong-import-position
 from dexjax.render.rendering import render_boxes  # pylint: disable=wrong-import-position
 
 SIZE = 500
-INTRINSICS = Intrinsics(fx=525.0, fy=525.0, cx=249.5, cy=249.5, width=SIZE, height=SIZE)
 
 
 def meshes(count: int) -> list[trimesh.Trimesh]:
@@ -62,16 +61,9 @@ def settled_heaps(count: int, num_heaps: int) -> tuple[list[trimesh.Trimesh], np
 
 
 def cameras(num: int) -> list[Camera]:
-  """``num`` cameras on a spiral around the bin, looking at points near its centre."""
-  out = []
-  for k in range(num):
-    azimuth, elevation = 2 * np.pi * k / num, np.radians(35 + 45 * ((k * 7) % num) / max(num - 1, 1))
-    radius = 0.45 + 0.3 * ((k * 3) % num) / max(num - 1, 1)
-    eye = radius * np.array([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation),
-                             np.sin(elevation)])
-    target = jnp.asarray([0.02 * np.cos(3 * k), 0.02 * np.sin(3 * k), 0.02], jnp.float32)
-    out.append(Camera(INTRINSICS, look_at(jnp.asarray(eye, jnp.float32), target), jnp.asarray(eye, jnp.float32)))
-  return out
+  """``num`` cameras drawn from the Dex-Net 4.0 camera distribution (`dexjax.render.sample_camera`)."""
+  keys = jax.random.split(jax.random.key(0), num)
+  return [sample_camera(k) for k in keys]
 
 
 def bench_backend(backend: str, gl_platform: str | None, args: argparse.Namespace) -> dict:
@@ -113,7 +105,8 @@ def baseline(args: argparse.Namespace) -> dict:
   camera = cameras(args.images)[0]
   rows = np.arange(0, SIZE, 10)
   v, u = np.meshgrid(rows.astype(float), np.arange(SIZE, dtype=float), indexing='ij')
-  rays = np.stack([(u - 249.5) / 525.0, (v - 249.5) / 525.0, np.ones_like(u)], -1).reshape(-1, 3)
+  k = camera.intrinsics
+  rays = np.stack([(u - float(k.cx)) / float(k.fx), (v - float(k.cy)) / float(k.fy), np.ones_like(u)], -1).reshape(-1, 3)
   dirs = rays @ np.asarray(camera.rotation, np.float64).T
   origins = np.tile(np.asarray(camera.position, np.float64), (len(dirs), 1))
   intersector = trimesh.ray.ray_triangle.RayMeshIntersector(scene)
