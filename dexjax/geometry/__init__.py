@@ -24,6 +24,7 @@ from dexjax.geometry.sdf import sdf_value
 from dexjax.geometry.sdf import surface_normal
 from dexjax.geometry.transforms import normalize
 from dexjax.geometry.transforms import perpendicular
+from dexjax.geometry.transforms import quat_to_matrix
 from dexjax.geometry.transforms import sample_cone
 from dexjax.geometry.transforms import sample_unit_sphere
 from dexjax.geometry.transforms import so3_exp

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 _EPS = 1e-12
 
@@ -63,3 +66,17 @@ def perpendicular(v: jax.Array, angle: float | jax.Array = 0.0) -> jax.Array:
   """A unit vector (3,) perpendicular to unit ``v``, rotated by ``angle`` rad about ``v`` from `tangent_basis`'s t1."""
   t1, t2 = tangent_basis(v)
   return jnp.cos(angle) * t1 + jnp.sin(angle) * t2
+
+
+def quat_to_matrix(q: Any, xp: Any = np) -> Any:
+  """Rotation matrices (..., 3, 3) of quaternions (..., 4) in (w, x, y, z) order, normalised first.
+
+  ``xp`` is `numpy` (default; float64, for scene building) or `jax.numpy` (jittable).
+  """
+  q = xp.asarray(q, np.float64) if xp is np else xp.asarray(q)
+  q = q / xp.linalg.norm(q, axis=-1, keepdims=True)
+  w, x, y, z = xp.moveaxis(q, -1, 0)
+  return xp.stack([
+      xp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+      xp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+      xp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)

@@ -1,4 +1,4 @@
-"""Analytic grasp quality: wrench resistance, deterministic and robust (Monte-Carlo) quality."""
+"""Analytic grasp quality: wrench resistance, deterministic and robust (Monte-Carlo) quality, heap rewards."""
 
 from dexjax.quality.evaluate import GraspEvaluation, evaluate_grasps
 from dexjax.quality.grasp_quality import (FAILURE_REASONS, Conditions, GraspOutcome, QualityConfig,
@@ -7,6 +7,9 @@ from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_
                                    Perturbations, RobustQuality, nominal_conditions, parallel_jaw_perturbations,
                                    perturb_parallel_jaw_grasp, perturb_suction_grasp, robust_parallel_jaw_quality,
                                    robust_suction_quality, sample_conditions, suction_perturbations)
+from dexjax.quality.gripper_geometry import GripperGeometry
+from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, RewardParams, RewardRecord, heap_grasp_reward,
+                                        parallel_jaw_heap_reward, stack_models, suction_heap_reward)
 from dexjax.quality.wrench import NNLSResult, lift_bounded_groups, nnls, resists, wrench_residual
 
 __all__ = [
@@ -15,5 +18,7 @@ __all__ = [
     "SUPERVISOR_SAMPLES", "SUPERVISOR_THRESHOLD", "Perturbations", "RobustQuality", "nominal_conditions",
     "parallel_jaw_perturbations", "perturb_parallel_jaw_grasp", "perturb_suction_grasp",
     "robust_parallel_jaw_quality", "robust_suction_quality", "sample_conditions", "suction_perturbations",
-    "NNLSResult", "lift_bounded_groups", "nnls", "resists", "wrench_residual",
+    "NNLSResult", "lift_bounded_groups", "nnls", "resists", "wrench_residual", "GripperGeometry", "REWARD_FAILURES",
+    "HeapScene", "RewardParams", "RewardRecord", "heap_grasp_reward", "parallel_jaw_heap_reward", "stack_models",
+    "suction_heap_reward",
 ]

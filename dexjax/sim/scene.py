@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
+from dexjax.geometry.transforms import quat_to_matrix
 from dexjax.sim.bodies import HeapObject
 from dexjax.sim.heap import Bin, HeapState
 
@@ -110,17 +111,6 @@ class SettleSettings:
       value = getattr(self, field)
       if not (np.isfinite(value) and value >= 0):
         raise ValueError(f'SettleSettings.{field}: expected a finite number >= 0 (metres), got {value!r}')
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-  """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) in (w, x, y, z) order."""
-  q = np.asarray(q, np.float64)
-  q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-  w, x, y, z = np.moveaxis(q, -1, 0)
-  return np.stack([
-      np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-      np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-      np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
 def bin_boxes(b: Bin) -> list[tuple[np.ndarray, np.ndarray]]:

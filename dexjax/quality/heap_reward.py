@@ -1,0 +1,272 @@
+"""The Dex-Net 4.0 reward S(x, u) in {0, 1} of a grasp in a settled heap (seed, "Reward Distribution").
+
+S = 1 iff, in this order of checks (the first failing one names the `RewardRecord.failure`):
+
+1. ``collision_object`` / ``collision_bin``: no sample point of the gripper's collision geometry
+   (`dexjax.quality.gripper_geometry`: fingers and palm, or cup and shaft, swept back along the approach by
+   the standoff) lies deeper than ``collision_tolerance`` inside any heap object (its signed distance grid,
+   queried in the object's frame) or the bin (below the floor z = 0, or inside a wall box of
+   `dexjax.sim.bin_boxes`). The surfaces meant to touch (finger pads, cup lip) are not sampled.
+2. ``no_object`` / ``multiple_objects``: exactly one object is contacted. Parallel jaw: an object is contacted
+   when it reaches more than ``collision_tolerance`` into the closing region between the pads (the jaws would
+   squeeze it). Suction: when its surface comes within ``suction_contact_distance`` of the cup's mouth disc.
+   The target is the contacted object under the grasp centre (smallest signed distance at the centre for the
+   jaws, smallest absolute distance for suction); ``target_slot`` is -1 when nothing is contacted.
+3. ``not_robust``: the robust quality of the grasp on the target alone (`robust_parallel_jaw_quality` /
+   `robust_suction_quality`, M = ``num_samples`` = 10 draws) exceeds ``threshold`` = 0.5 (strictly: "over
+   50 %"). The grasp is expressed in the target's frame, and gravity is the world's -z in that frame:
+   ``Perturbations.gravity_axis`` = R^T (0, 0, -1) with ``gravity_cone_angle`` = 0 (a fixed direction),
+   while mass, friction, pose noise and disturbance are drawn as in the supervisor's model.
+
+Heap objects: `HeapScene` holds the models of the N available objects stacked along a leading axis (all
+built with the same grid size, e.g. `prepare_object_set` output at one ``grid_size``; `stack_models`), and
+per slot of the padded heap (P = 10) an object id, a mask and a pose. Signed distances are read straight
+from the stacked grid at (id, voxel) (`_stacked_sdf`), so no per-slot copy of a grid is made; only the
+target's model is gathered (once) for the robust quality. Every function takes one grasp; batch with
+`jax.vmap` (over grasps, keys or heaps).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from dexjax.geometry.object_model import ObjectModel
+from dexjax.geometry.transforms import quat_to_matrix
+from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
+from dexjax.grippers import ParallelJawGripper, SuctionGripper
+from dexjax.quality.grasp_quality import QualityConfig
+from dexjax.quality.gripper_geometry import (GripperGeometry, jaw_collision_points, jaw_contact_points,
+                                             suction_collision_points, suction_contact_points, to_world)
+from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
+                                   robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations)
+
+if TYPE_CHECKING:
+  from dexjax.sim.heap import Bin
+
+#: Names of `RewardRecord.failure` codes (index = code).
+REWARD_FAILURES = ('none', 'collision_object', 'collision_bin', 'no_object', 'multiple_objects', 'not_robust')
+(NONE, COLLISION_OBJECT, COLLISION_BIN, NO_OBJECT, MULTIPLE_OBJECTS, NOT_ROBUST) = range(len(REWARD_FAILURES))
+
+_CORNERS = np.array(list(itertools.product((0, 1), repeat=3)), np.int32)  # (8, 3)
+_WORLD_DOWN = (0.0, 0.0, -1.0)
+
+
+@struct.dataclass
+class HeapScene:
+  """A settled heap as seen by the reward (P padded slots; add a leading axis and `vmap` for batches).
+
+  Attributes:
+    models: `ObjectModel` of the N available objects stacked along a leading axis (same grid size).
+    object_ids: (P,) int32 index into ``models`` per slot (ignored where not ``mask``).
+    mask: (P,) bool, the slot holds an object of the heap.
+    poses: (P, 7) float32 object-frame poses in the world frame: position (metres), then the unit
+      quaternion (w, x, y, z) rotating object coordinates into the world (`SettleResult.poses[b]`).
+  """
+
+  models: ObjectModel
+  object_ids: jax.Array
+  mask: jax.Array
+  poses: jax.Array
+
+
+@struct.dataclass
+class RewardParams:
+  """Settings of the heap reward (defaults: Dex-Net 4.0).
+
+  Attributes:
+    geometry: the gripper's collision geometry.
+    collision_tolerance: a sample point collides when it is more than this deep inside a solid, metres (1 mm).
+    suction_contact_distance: the cup contacts an object whose surface is within this of the mouth disc,
+      metres (2 mm).
+    threshold: the grasp is robust when the probability exceeds this (strictly).
+    num_samples: static Monte-Carlo draws M of the robust quality.
+    quality: numerical settings of the wrench-resistance test.
+  """
+
+  geometry: GripperGeometry = GripperGeometry()
+  collision_tolerance: float = 1e-3
+  suction_contact_distance: float = 2e-3
+  threshold: float = REWARD_THRESHOLD
+  num_samples: int = struct.field(pytree_node=False, default=REWARD_SAMPLES)
+  quality: QualityConfig = QualityConfig()
+
+
+@struct.dataclass
+class RewardRecord:
+  """The reward of one grasp and why it is 0.
+
+  Attributes:
+    reward: () int32, 1 for a successful grasp, else 0.
+    robust_probability: () float32 robust quality on the target (0 when there is no target).
+    target_slot: () int32 heap slot of the grasped object, -1 when no object is contacted.
+    num_contacts: () int32 number of objects the gripper contacts.
+    failure: () int32 index into `REWARD_FAILURES` (0 when ``reward`` is 1).
+  """
+
+  reward: jax.Array
+  robust_probability: jax.Array
+  target_slot: jax.Array
+  num_contacts: jax.Array
+  failure: jax.Array
+
+
+def stack_models(models: Sequence[ObjectModel]) -> ObjectModel:
+  """Stacks object models of equal grid size into one `ObjectModel` with a leading object axis."""
+  shapes = {m.sdf.shape for m in models}
+  if len(shapes) != 1:
+    raise ValueError(f'stack_models: expected models of one grid size, got sdf shapes {sorted(shapes)}')
+  return jax.tree.map(lambda *xs: jnp.stack(xs), *models)
+
+
+def _stacked_sdf(models: ObjectModel, index: jax.Array, x: jax.Array) -> jax.Array:
+  """Signed distance () in metres of object ``index`` of stacked ``models`` at object-frame point ``x`` (3,);
+  the same value as `dexjax.geometry.sdf_value` on that model, without slicing its grid."""
+  d = models.sdf.shape[-1]
+  h = models.voxel_size[index]
+  g = (x - models.origin[index]) / h
+  gc = jnp.clip(g, 0.0, d - 1.0)
+  sq = jnp.sum((g - gc) ** 2)
+  pos = sq > 0.0  # double `where`: a finite gradient where the point is inside the grid
+  outside = jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0) * h
+  i0 = jnp.clip(jnp.floor(gc), 0, d - 2).astype(jnp.int32)
+  frac = gc - i0
+  idx = i0[None, :] + _CORNERS
+  w = jnp.prod(jnp.where(_CORNERS == 1, frac[None, :], 1.0 - frac[None, :]), axis=-1)
+  return jnp.dot(w, models.sdf[index, idx[:, 0], idx[:, 1], idx[:, 2]]) + outside
+
+
+def slot_distances(scene: HeapScene, points: jax.Array) -> jax.Array:
+  """(P, K) signed distance (metres) of world points (K, 3) to the object in each slot; +inf in empty slots."""
+
+  def one(index, pose):
+    rot = quat_to_matrix(pose[3:], xp=jnp)
+    local = (points - pose[:3]) @ rot  # R^T (p - t), row-wise
+    return jax.vmap(lambda p: _stacked_sdf(scene.models, index, p))(local)
+
+  ids = jnp.clip(scene.object_ids, 0, scene.models.sdf.shape[0] - 1)
+  dist = jax.vmap(one)(ids, scene.poses)
+  return jnp.where(scene.mask[:, None], dist, jnp.inf)
+
+
+def bin_collision(points: jax.Array, bin_: Bin, tolerance: float) -> jax.Array:
+  """() bool, a world point (K, 3) is more than ``tolerance`` below the floor z = 0 or inside a wall box."""
+  from dexjax.sim.scene import bin_boxes  # pylint: disable=g-import-not-at-top (avoids a quality <-> sim cycle)
+  walls = bin_boxes(bin_)[1:]
+  centres = jnp.asarray(np.stack([c for c, _ in walls]), jnp.float32)
+  halves = jnp.asarray(np.stack([s for _, s in walls]), jnp.float32) - tolerance
+  inside = jnp.all(jnp.abs(points[:, None, :] - centres[None]) < halves[None], axis=-1)
+  return jnp.any(points[:, 2] < -tolerance) | jnp.any(inside)
+
+
+def _to_object_frame(pose: jax.Array, point: jax.Array, directions: jax.Array):
+  """A world point (3,) and directions (k, 3) in the frame of the object at ``pose`` (7,)."""
+  rot = quat_to_matrix(pose[3:], xp=jnp)
+  return (point - pose[:3]) @ rot, directions @ rot, rot
+
+
+def _gravity_perturbations(base: Perturbations, rot: jax.Array, num_samples: int) -> Perturbations:
+  """``base`` with gravity fixed to the world's -z expressed in the object frame (object-to-world ``rot``)."""
+  down = jnp.asarray(_WORLD_DOWN, jnp.float32) @ rot
+  return base.replace(gravity_axis=down, gravity_cone_angle=0.0, num_samples=num_samples)
+
+
+def _select_target(contacted: jax.Array, center_distance: jax.Array) -> jax.Array:
+  """() int32 slot of the contacted object with the smallest ``center_distance`` (P,); -1 if none."""
+  score = jnp.where(contacted, center_distance, jnp.inf)
+  return jnp.where(jnp.any(contacted), jnp.argmin(score), -1).astype(jnp.int32)
+
+
+def _record(hit_object, hit_bin, contacted, target, probability, threshold) -> RewardRecord:
+  """Combines the ordered checks into a `RewardRecord`."""
+  count = jnp.sum(contacted).astype(jnp.int32)
+  probability = jnp.where(target >= 0, probability, 0.0)
+  checks = [(hit_object, COLLISION_OBJECT), (hit_bin, COLLISION_BIN), (count == 0, NO_OBJECT),
+            (count > 1, MULTIPLE_OBJECTS), (probability <= threshold, NOT_ROBUST)]
+  failure = jnp.int32(NONE)
+  for failed, code in reversed(checks):
+    failure = jnp.where(failed, code, failure)
+  failure = failure.astype(jnp.int32)
+  return RewardRecord(reward=(failure == NONE).astype(jnp.int32), robust_probability=probability,
+                      target_slot=target, num_contacts=count, failure=failure)
+
+
+def _target_model(scene: HeapScene, target: jax.Array) -> ObjectModel:
+  """The `ObjectModel` of the object in slot ``target`` (slot 0's when ``target`` is -1)."""
+  index = jnp.clip(scene.object_ids[jnp.maximum(target, 0)], 0, scene.models.sdf.shape[0] - 1)
+  return jax.tree.map(lambda a: a[index], scene.models)
+
+
+def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin,
+                             gripper: ParallelJawGripper = ParallelJawGripper(),
+                             params: RewardParams = RewardParams(),
+                             perturbations: Perturbations | None = None) -> RewardRecord:
+  """Dex-Net 4.0 reward of one parallel-jaw grasp given in the world frame (see the module doc).
+
+  Args:
+    key: `jax.random` key of the robust-quality draws.
+    grasp: the grasp, world frame, metres.
+    scene: the heap's objects and poses.
+    bin_: the bin's geometry (static).
+    gripper: jaw parameters of the robust quality.
+    params: reward settings.
+    perturbations: robust-quality noise (default `parallel_jaw_perturbations`); its gravity is replaced by
+      the world's.
+  """
+  pose = parallel_jaw_pose(grasp)
+  tol = params.collision_tolerance
+  body = to_world(pose, jaw_collision_points(params.geometry, grasp.width))
+  closing = to_world(pose, jaw_contact_points(params.geometry, grasp.width))
+  hit_object = jnp.any(slot_distances(scene, body) < -tol)
+  contacted = jnp.min(slot_distances(scene, closing), axis=1) < -tol
+  target = _select_target(contacted, slot_distances(scene, grasp.center[None])[:, 0])
+  obj_pose = scene.poses[jnp.maximum(target, 0)]
+  center, dirs, rot = _to_object_frame(obj_pose, grasp.center, jnp.stack([grasp.axis, grasp.approach]))
+  local = grasp.replace(center=center, axis=dirs[0], approach=dirs[1])
+  base = parallel_jaw_perturbations() if perturbations is None else perturbations
+  robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper,
+                                       _gravity_perturbations(base, rot, params.num_samples), params.quality)
+  return _record(hit_object, bin_collision(body, bin_, tol), contacted, target, robust.probability,
+                 params.threshold)
+
+
+def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, bin_: Bin,
+                        gripper: SuctionGripper = SuctionGripper(), params: RewardParams = RewardParams(),
+                        perturbations: Perturbations | None = None) -> RewardRecord:
+  """Dex-Net 4.0 reward of one suction grasp given in the world frame (see the module doc).
+
+  Args: as `parallel_jaw_heap_reward`; ``perturbations`` defaults to `suction_perturbations` (gravity replaced
+  by the world's).
+  """
+  pose = suction_pose(grasp)
+  tol = params.collision_tolerance
+  body = to_world(pose, suction_collision_points(params.geometry, gripper.cup_radius, gripper.cone_height))
+  mouth = to_world(pose, suction_contact_points(params.geometry, gripper.cup_radius))
+  hit_object = jnp.any(slot_distances(scene, body) < -tol)
+  contacted = jnp.min(slot_distances(scene, mouth), axis=1) < params.suction_contact_distance
+  target = _select_target(contacted, jnp.abs(slot_distances(scene, grasp.center[None])[:, 0]))
+  obj_pose = scene.poses[jnp.maximum(target, 0)]
+  center, dirs, rot = _to_object_frame(obj_pose, grasp.center, grasp.approach[None])
+  local = grasp.replace(center=center, approach=dirs[0])
+  base = suction_perturbations() if perturbations is None else perturbations
+  robust = robust_suction_quality(key, _target_model(scene, target), local, gripper,
+                                  _gravity_perturbations(base, rot, params.num_samples), params.quality)
+  return _record(hit_object, bin_collision(body, bin_, tol), contacted, target, robust.probability,
+                 params.threshold)
+
+
+def heap_grasp_reward(key: jax.Array, grasp: ParallelJawGrasp | SuctionGrasp, scene: HeapScene, bin_: Bin,
+                      gripper: ParallelJawGripper | SuctionGripper | None = None,
+                      params: RewardParams = RewardParams(),
+                      perturbations: Perturbations | None = None) -> RewardRecord:
+  """Dispatches on the grasp type to `parallel_jaw_heap_reward` or `suction_heap_reward` (gripper default:
+  the Dex-Net 4.0 one of that type)."""
+  if isinstance(grasp, SuctionGrasp):
+    return suction_heap_reward(key, grasp, scene, bin_, gripper or SuctionGripper(), params, perturbations)
+  return parallel_jaw_heap_reward(key, grasp, scene, bin_, gripper or ParallelJawGripper(), params, perturbations)

@@ -1,0 +1,175 @@
+"""The Dex-Net 4.0 heap reward on hand-built heaps of built-in boxes and cubes, with exact geometry.
+
+Box: 8 x 6 x 4 cm, cube: 4 cm, both centred on their frames' origins; a box resting flat on the floor has its
+origin at z = 2 cm. Bin: default 0.4 x 0.4 m, so its +x wall spans x in [0.2, 0.21].
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dexjax.geometry import sdf_value
+from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
+from dexjax.grippers import ParallelJawGripper
+from dexjax.quality import parallel_jaw_perturbations, robust_parallel_jaw_quality
+from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, heap_grasp_reward, slot_distances,
+                                        stack_models)
+from dexjax.sim.heap import Bin
+from scipy.spatial.transform import Rotation
+
+GRID = 48
+P = 10
+BOX, CUBE = 0, 1
+IDENTITY = (1.0, 0.0, 0.0, 0.0)
+KEY = jax.random.key(7)
+BIN = Bin()
+DOWN = (0.0, 0.0, -1.0)
+
+_reward = jax.jit(heap_grasp_reward, static_argnums=3)
+_batched_reward = jax.jit(jax.vmap(heap_grasp_reward, in_axes=(None, 0, 0, None)), static_argnums=3)
+_robust_pj = jax.jit(robust_parallel_jaw_quality)
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+  from dexjax.objects import load_object_model
+  cache = tmp_path_factory.mktemp("heap_reward_cache")
+  return [load_object_model(f"builtin:{name}", cache_dir=cache, grid_size=GRID) for name in ("box", "cube")]
+
+
+def _scene(models, entries):
+  """A `HeapScene` of (object id, position, quaternion wxyz) entries, padded to P slots."""
+  ids = np.zeros(P, np.int32)
+  mask = np.zeros(P, bool)
+  poses = np.tile(np.array([0, 0, 0, *IDENTITY], np.float32), (P, 1))
+  for slot, (index, position, quat) in enumerate(entries):
+    ids[slot], mask[slot] = index, True
+    poses[slot] = np.r_[position, np.asarray(quat) / np.linalg.norm(quat)]
+  return HeapScene(models=stack_models(models), object_ids=jnp.asarray(ids), mask=jnp.asarray(mask),
+                   poses=jnp.asarray(poses))
+
+
+def _jaws(center, axis=(1.0, 0.0, 0.0), approach=DOWN, width=0.05):
+  f = lambda v: jnp.asarray(v, jnp.float32)
+  return ParallelJawGrasp(center=f(center), axis=f(axis), approach=f(approach), width=jnp.float32(width))
+
+
+def _cup(center, approach=DOWN):
+  return SuctionGrasp(center=jnp.asarray(center, jnp.float32), approach=jnp.asarray(approach, jnp.float32))
+
+
+def _failure(record):
+  return REWARD_FAILURES[int(record.failure)]
+
+
+def _jaw_cases(models):
+  """(name, scene, grasp, expected failure, expected target) of the parallel-jaw heaps (shared shapes)."""
+  far = (CUBE, (-0.12, 0.12, 0.02), IDENTITY)
+  return [
+      # Jaws (x) across an isolated cube: fingers at |x| in [2.5, 3.5] cm clear it, tips 1 cm above the floor.
+      ("isolated", _scene(models, [(CUBE, (0.0, 0.0, 0.02), IDENTITY), far]), _jaws((0.0, 0.0, 0.02)),
+       "none", 0),
+      # Two cubes touching along y = 0; the pads (2 cm across y) close on both.
+      ("two_touching", _scene(models, [(CUBE, (0.0, 0.02, 0.02), IDENTITY), (CUBE, (0.0, -0.02, 0.02), IDENTITY)]),
+       _jaws((0.0, 0.0, 0.02)), "multiple_objects", None),
+      # A neighbour at x in [2.3, 6.3] cm fills the +x finger's place (x in [2.5, 3.5] cm).
+      ("neighbour", _scene(models, [(CUBE, (0.0, 0.0, 0.02), IDENTITY), (CUBE, (0.043, 0.0, 0.02), IDENTITY)]),
+       _jaws((0.0, 0.0, 0.02)), "collision_object", None),
+      # A cube against the +x wall: its +x finger (x in [20.4, 21.4] cm) is inside the wall (x in [20, 21] cm).
+      ("wall", _scene(models, [(CUBE, (0.179, 0.0, 0.02), IDENTITY)]), _jaws((0.179, 0.0, 0.02)),
+       "collision_bin", 0),
+  ]
+
+
+def test_stacked_sdf_matches_object_model_query(models):
+  """`slot_distances` reads the same distances as `sdf_value` after the inverse pose transform."""
+  q = np.array([0.9, 0.3, -0.2, 0.1])
+  q /= np.linalg.norm(q)
+  t = np.array([0.05, -0.02, 0.1])
+  scene = _scene(models, [(CUBE, t, q), (BOX, t, q)])
+  local = np.random.default_rng(0).uniform(-0.05, 0.05, (64, 3)).astype(np.float32)
+  world = local @ Rotation.from_quat(np.asarray(q, float), scalar_first=True).as_matrix().T + t
+  dist = np.asarray(jax.jit(slot_distances)(scene, jnp.asarray(world, jnp.float32)))
+  for slot, model in enumerate(models[::-1]):
+    expected = np.asarray(jax.vmap(lambda p, m=model: sdf_value(m, p))(jnp.asarray(local)))
+    np.testing.assert_allclose(dist[slot], expected, atol=2e-6)
+  assert np.all(np.isinf(dist[2:]))
+
+
+def test_centred_suction_on_flat_box_succeeds_and_empty_floor_has_no_object(models):
+  scene = _scene(models, [(BOX, (0.0, 0.0, 0.02), IDENTITY), (CUBE, (0.12, 0.12, 0.02), IDENTITY)])
+  good = _reward(KEY, _cup((0.0, 0.0, 0.04)), scene, BIN)
+  assert int(good.reward) == 1 and _failure(good) == "none"
+  assert int(good.target_slot) == 0 and int(good.num_contacts) == 1
+  assert float(good.robust_probability) > 0.5
+  floor = _reward(KEY, _cup((-0.1, -0.1, 0.0)), scene, BIN)
+  assert int(floor.reward) == 0 and _failure(floor) == "no_object" and int(floor.target_slot) == -1
+  # The cup lowered 1 cm into the box's top face: its body (behind the 3 mm lip slab) is inside the box.
+  sunk = _reward(KEY, _cup((0.0, 0.0, 0.03)), scene, BIN)
+  assert _failure(sunk) == "collision_object"
+
+
+@pytest.mark.parametrize("case", range(4))
+def test_parallel_jaw_heap_failures(models, case):
+  name, scene, grasp, expected, target = _jaw_cases(models)[case]
+  record = _reward(KEY, grasp, scene, BIN)
+  assert _failure(record) == expected, name
+  assert int(record.reward) == (expected == "none")
+  if target is not None:
+    assert int(record.target_slot) == target
+  if name == "two_touching":
+    assert int(record.num_contacts) == 2
+
+
+def test_jit_vmap_batch_agrees_with_single_calls(models):
+  cases = _jaw_cases(models)
+  scenes = jax.tree.map(lambda *xs: jnp.stack(xs), *[c[1] for c in cases])
+  grasps = jax.tree.map(lambda *xs: jnp.stack(xs), *[c[2] for c in cases])
+  batch = _batched_reward(KEY, grasps, scenes, BIN)
+  assert [REWARD_FAILURES[int(f)] for f in batch.failure] == [c[3] for c in cases]
+  for i, (_, scene, grasp, _, _) in enumerate(cases):
+    single = _reward(KEY, grasp, scene, BIN)
+    for field in ("reward", "target_slot", "num_contacts", "failure"):
+      assert int(getattr(batch, field)[i]) == int(getattr(single, field)), field
+    np.testing.assert_allclose(float(batch.robust_probability[i]), float(single.robust_probability), atol=1e-6)
+
+
+def test_robust_probability_equals_object_frame_quality_with_world_gravity(models):
+  """A box in a general pose: the reward's probability is the robust quality evaluated directly in the object
+  frame (grasp mapped with the independent NumPy rotation, gravity = R^T (0, 0, -1)), draw for draw."""
+  box, key = models[BOX], jax.random.key(1)
+  q = np.array([0.8, 0.4, -0.3, 0.2])
+  q /= np.linalg.norm(q)
+  rot, t = Rotation.from_quat(np.asarray(q, float), scalar_first=True).as_matrix(), np.array([0.03, -0.02, 0.3])
+  scene = _scene(models, [(CUBE, (-0.12, -0.12, 0.02), IDENTITY), (BOX, t, q)])
+  world = lambda p: rot @ np.asarray(p) + t
+  # Jaws closing on the 4 cm (z) faces, off-centre in x so that gravity's direction matters.
+  local = _jaws((0.025, 0.0, 0.0), axis=(0.0, 0.0, 1.0), approach=(0.0, -1.0, 0.0))
+  grasp = _jaws(world(local.center), axis=rot @ np.asarray(local.axis), approach=rot @ np.asarray(local.approach))
+  record = _reward(key, grasp, scene, BIN)
+  assert int(record.target_slot) == 1
+
+  def direct(gravity):
+    perturbations = parallel_jaw_perturbations().replace(gravity_axis=jnp.asarray(gravity, jnp.float32),
+                                                          gravity_cone_angle=0.0)
+    return float(_robust_pj(key, box, local, ParallelJawGripper(), perturbations).probability)
+
+  np.testing.assert_allclose(float(record.robust_probability), direct(rot.T @ np.array(DOWN)), atol=1e-6)
+  # The check can fail: gravity left as the world's -z in the object frame gives another probability.
+  assert abs(float(record.robust_probability) - direct(DOWN)) > 0.05
+  # Suction on the box's +x face (x = 4 cm) in the same pose targets the box too (same frame code path).
+  local = _cup((0.04, 0.01, 0.005), approach=(-1.0, 0.0, 0.0))
+  record = _reward(key, _cup(world(local.center), approach=rot @ np.asarray(local.approach)), scene, BIN)
+  assert int(record.target_slot) == 1 and int(record.num_contacts) == 1
+
+
+def test_quat_to_matrix_matches_scipy_in_numpy_and_jax():
+  from dexjax.geometry import quat_to_matrix
+  q = np.random.default_rng(0).normal(size=(16, 4)) * 3.0  # not normalised: the function normalises
+  expected = Rotation.from_quat(q, scalar_first=True).as_matrix()
+  np.testing.assert_allclose(quat_to_matrix(q), expected, atol=1e-12)
+  np.testing.assert_allclose(np.asarray(jax.vmap(lambda x: quat_to_matrix(x, xp=jnp))(jnp.asarray(q, jnp.float32))),
+                             expected, atol=1e-5)
