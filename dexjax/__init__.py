@@ -6,7 +6,7 @@ object models and object sets (`dexjax.objects`), and heaps of objects settled w
 Every function works on a single item; batch with `jax.vmap`.
 """
 
-from dexjax import config, contacts, geometry, objects, quality, render, sampling, sim
+from dexjax import config, contacts, data, geometry, objects, quality, render, sampling, sim
 from dexjax.config import ConfigError
 from dexjax.objects import BUILTIN_OBJECTS, builtin_mesh, load_object_model
 from dexjax.contacts import *  # noqa: F401,F403

@@ -1,0 +1,162 @@
+"""Streaming, shuffled, leak-free train/validation batches from a directory of shards.
+
+Split rule (`split_images`): membership is decided per image by a seeded hash, so it is the same in every shard,
+every epoch and every process, and needs no pass over the dataset.
+
+* ``by="heap"``: a heap is in validation if hash(heap_id) < val_fraction; all images of a heap (and all their
+  rows) follow their heap, so no heap is in both sets.
+* ``by="object"``: objects are split first (object id in validation if hash(object_id) < val_fraction); then
+  images follow their objects: an image with only training objects is training, an image with *any*
+  validation object is validation (images mixing both kinds go to validation, never to training). So no
+  training row ever shows a validation object; validation heaps may also contain training objects.
+
+Rows are never split individually: rows of one image are always in the same set.
+
+`iterate_rows` reads one shard at a time, in a seeded random order, and mixes rows in a bounded shuffle buffer;
+memory holds at most ``shuffle_buffer + batch_size`` rows, one shard, and the depth images the buffered rows
+point at. Call it again with another ``seed`` for the next epoch.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from dexjax.data.manifest import load_manifest
+from dexjax.data.shards import ROW_SCHEMA, read_shard, shard_path
+
+TRAIN, VAL = 0, 1
+_SPLITS = {"train": TRAIN, "val": VAL}
+_M1, _M2, _GOLDEN = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB), np.uint64(0x9E3779B97F4A7C15)
+
+
+def _unit_hash(keys: np.ndarray, seed: int) -> np.ndarray:
+  """Splitmix64 of (key, seed) mapped to [0, 1), elementwise; same shape as ``keys`` (integers)."""
+  x = np.asarray(keys, np.int64).view(np.uint64) + np.uint64((seed + 1) * int(_GOLDEN) % 2**64)
+  x = (x ^ (x >> np.uint64(30))) * _M1
+  x = (x ^ (x >> np.uint64(27))) * _M2
+  x = x ^ (x >> np.uint64(31))
+  return (x >> np.uint64(11)).astype(np.float64) / float(2**53)
+
+
+def split_images(heap_ids: np.ndarray, object_ids: np.ndarray, by: str = "heap", val_fraction: float = 0.1,
+                 seed: int = 0) -> np.ndarray:
+  """Train/validation label of each image: `TRAIN` (0) or `VAL` (1); see the module docstring for the rule.
+
+  Args:
+    heap_ids: (N,) int, the images' heap ids.
+    object_ids: (N, P) int, the images' object ids, -1 for empty slots (ignored).
+    by: ``"heap"`` or ``"object"``.
+    val_fraction: expected fraction of heaps (or objects) in validation, in [0, 1].
+    seed: split seed; keep it fixed across epochs and runs that must agree.
+
+  Returns:
+    (N,) int8 labels.
+  """
+  if not 0.0 <= val_fraction <= 1.0:
+    raise ValueError(f"split_images: field 'val_fraction': expected a value in [0, 1], got {val_fraction}")
+  if by == "heap":
+    is_val = _unit_hash(np.asarray(heap_ids), seed) < val_fraction
+  elif by == "object":
+    object_ids = np.asarray(object_ids)
+    is_val = ((_unit_hash(object_ids, seed) < val_fraction) & (object_ids >= 0)).any(axis=1)
+  else:
+    raise ValueError(f"split_images: field 'by': expected 'heap' or 'object', got {by!r}")
+  return np.where(is_val, VAL, TRAIN).astype(np.int8)
+
+
+def list_shards(out_dir: str | os.PathLike) -> list[Path]:
+  """Finished shards of ``out_dir`` in index order: those in the manifest, else every ``shard-*.npz`` file."""
+  manifest = load_manifest(out_dir)
+  if manifest is not None:
+    return [shard_path(out_dir, i) for i in sorted(manifest.shards)]
+  return sorted(Path(out_dir).glob("shard-[0-9]*.npz"))
+
+
+def _select_rows(shard, split: int, by: str, val_fraction: float, split_seed: int) -> np.ndarray:
+  """Indices of the shard's rows whose image is in ``split``."""
+  labels = split_images(shard.images["heap_id"], shard.images["object_ids"], by, val_fraction, split_seed)
+  return np.flatnonzero(labels[shard.rows["image_index"]] == split)
+
+
+class _Buffer:
+  """Shuffle buffer: row fields as arrays, plus the depth images (keyed by (shard slot, image)) rows point at."""
+
+  def __init__(self):
+    self.rows: dict[str, np.ndarray] | None = None
+    self.depths: dict[tuple[int, int], np.ndarray] = {}
+
+  def __len__(self) -> int:
+    return 0 if self.rows is None else len(self.rows["image_index"])
+
+  def add(self, shard, slot: int, index: np.ndarray) -> None:
+    """Appends the rows ``index`` of ``shard`` (read as slot ``slot``) and their images."""
+    new = {k: shard.rows[k][index] for k in ROW_SCHEMA}
+    new["shard_index"] = np.full(len(index), shard.meta["index"], np.int32)
+    new["row_index"] = index.astype(np.int32)
+    new["_slot"] = np.full(len(index), slot, np.int32)
+    for image in np.unique(new["image_index"]):
+      self.depths[(slot, int(image))] = shard.images["depth"][image].copy()  # a copy frees the shard
+    self.rows = new if self.rows is None else {k: np.concatenate([self.rows[k], new[k]]) for k in new}
+
+  def take(self, index: np.ndarray) -> dict[str, np.ndarray]:
+    """Removes the rows ``index`` and returns them as a batch with their depth images gathered."""
+    batch = {k: v[index] for k, v in self.rows.items()}
+    self.rows = {k: np.delete(v, index, axis=0) for k, v in self.rows.items()}
+    slots = batch.pop("_slot")
+    batch["depth"] = np.stack([self.depths[(int(s), int(i))] for s, i in zip(slots, batch["image_index"])])
+    return batch
+
+  def prune(self) -> None:
+    """Drops images that no buffered row points at."""
+    live = set(zip(self.rows["_slot"].tolist(), self.rows["image_index"].tolist())) if len(self) else set()
+    self.depths = {k: v for k, v in self.depths.items() if k in live}
+
+
+def iterate_rows(out_dir: str | os.PathLike, split: str = "train", batch_size: int = 64, seed: int = 0,
+                 shuffle_buffer: int = 10_000, by: str = "heap", val_fraction: float = 0.1, split_seed: int = 0,
+                 drop_remainder: bool = False) -> Iterator[dict[str, np.ndarray]]:
+  """Streams one epoch of shuffled batches of the rows of ``split``.
+
+  Args:
+    out_dir: directory with shards (and usually a manifest, see `list_shards`).
+    split: ``"train"`` or ``"val"``.
+    batch_size: rows per batch; the last batch is smaller unless ``drop_remainder``.
+    seed: shuffle seed (shard order and row order); use a new one per epoch.
+    shuffle_buffer: rows kept for mixing; larger mixes rows of more shards.
+    by, val_fraction, split_seed: the split, see `split_images`.
+    drop_remainder: drop the last, partial batch.
+
+  Yields:
+    Dicts of NumPy arrays with leading axis B: every `ROW_SCHEMA` field, ``depth`` (B, H, W) float32 (the
+    row's depth image, metres), ``shard_index`` and ``row_index`` (B,) int32 (where the row came from).
+  """
+  if split not in _SPLITS:
+    raise ValueError(f"iterate_rows: field 'split': expected 'train' or 'val', got {split!r}")
+  if batch_size < 1 or shuffle_buffer < 0:
+    raise ValueError(f"iterate_rows: expected batch_size >= 1 and shuffle_buffer >= 0, got {batch_size}, "
+                     f"{shuffle_buffer}")
+  rng = np.random.default_rng(seed)
+  paths = list_shards(out_dir)
+  buffer = _Buffer()
+  for slot, path_index in enumerate(rng.permutation(len(paths))):
+    shard = read_shard(paths[path_index])
+    buffer.add(shard, slot, _select_rows(shard, _SPLITS[split], by, val_fraction, split_seed))
+    del shard
+    while len(buffer) >= shuffle_buffer + batch_size:
+      yield buffer.take(rng.choice(len(buffer), batch_size, replace=False))
+    buffer.prune()
+  yield from _drain(buffer, rng, batch_size, drop_remainder)
+
+
+def _drain(buffer: _Buffer, rng: np.random.Generator, batch_size: int,
+           drop_remainder: bool) -> Iterator[dict[str, np.ndarray]]:
+  """Yields the rest of the buffer in random order."""
+  while len(buffer) >= batch_size or (len(buffer) and not drop_remainder):
+    yield buffer.take(rng.choice(len(buffer), min(batch_size, len(buffer)), replace=False))
+
+
+__all__ = ["TRAIN", "VAL", "iterate_rows", "list_shards", "split_images"]
