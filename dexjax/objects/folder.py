@@ -141,15 +141,20 @@ def load_mesh_folder(
       rejected.append(Rejection(rel, f"unsupported extension {shown}; expected one of "
                                      f"{', '.join(SUPPORTED_EXTENSIONS)}"))
       continue
-    try:
-      mesh = load_mesh(path, scale=float(scale))
-    except MeshError as e:
-      rejected.append(Rejection(rel, e.reason))
-    except Exception as e:  # One bad file must never stop the others.
-      rejected.append(Rejection(rel, f'{type(e).__name__}: {e}'))
-    else:
-      loaded.append(LoadedObject(name=names[rel], path=path, mesh=mesh))
+    outcome = load_file(path, name=names[rel], label=rel, scale=scale)
+    (loaded if isinstance(outcome, LoadedObject) else rejected).append(outcome)
   return FolderReport(loaded=loaded, rejected=rejected)
+
+
+def load_file(path: str, *, name: str, label: str, scale: float = 1.0) -> LoadedObject | Rejection:
+  """Loads one mesh file as object ``name``, or returns its `Rejection` (filed under ``label``); never raises."""
+  try:
+    mesh = load_mesh(path, scale=float(scale))
+  except MeshError as e:
+    return Rejection(label, e.reason)
+  except Exception as e:  # One bad file must never stop the others.
+    return Rejection(label, f'{type(e).__name__}: {e}')
+  return LoadedObject(name=name, path=path, mesh=mesh)
 
 
 def prepare_object(

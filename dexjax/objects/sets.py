@@ -22,10 +22,10 @@ import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from dexjax.geometry.mesh_io import MeshError, load_mesh
+from dexjax.geometry.mesh_io import MeshError
 from dexjax.objects.builtin import BUILTIN_OBJECTS, BUILTIN_PREFIX, resolve_mesh
 from dexjax.objects.folder import FolderReport, LoadedObject, PreparedObject, Rejection, load_mesh_folder
-from dexjax.objects.folder import prepare_object
+from dexjax.objects.folder import load_file, prepare_object
 from dexjax.objects.procedural import PROCEDURAL_LEVELS, PROCEDURAL_PREFIX, procedural_spec
 
 _RANGE_PATTERN = re.compile(r'L([0-9])/(0|[1-9][0-9]*):(0|[1-9][0-9]*)(?:@(0|[1-9][0-9]*))?')
@@ -104,14 +104,8 @@ def load_object_set(sources: Iterable[str | os.PathLike[str]], *, scale: float =
       loaded.extend(LoadedObject(name=f'{folder}/{o.name}', path=o.path, mesh=o.mesh) for o in report.loaded)
       rejected.extend(Rejection(os.path.join(source, r.file), r.reason) for r in report.rejected)
     else:
-      try:
-        mesh = load_mesh(source, scale=float(scale))
-      except MeshError as e:
-        rejected.append(Rejection(source, e.reason))
-      except Exception as e:  # One bad file must never stop the others.
-        rejected.append(Rejection(source, f'{type(e).__name__}: {e}'))
-      else:
-        loaded.append(LoadedObject(name=os.path.splitext(os.path.basename(source))[0], path=source, mesh=mesh))
+      outcome = load_file(source, name=os.path.splitext(os.path.basename(source))[0], label=source, scale=scale)
+      (loaded if isinstance(outcome, LoadedObject) else rejected).append(outcome)
   return FolderReport(loaded=_unique(loaded, rejected), rejected=rejected)
 
 
