@@ -9,7 +9,8 @@ from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_
                                    robust_suction_quality, sample_conditions, suction_perturbations)
 from dexjax.quality.gripper_geometry import GripperGeometry
 from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, RewardParams, RewardRecord, heap_grasp_reward,
-                                        parallel_jaw_heap_reward, stack_models, suction_heap_reward)
+                                        parallel_jaw_collisions, parallel_jaw_heap_reward, stack_models,
+                                        suction_collisions, suction_heap_reward)
 from dexjax.quality.wrench import NNLSResult, lift_bounded_groups, nnls, resists, wrench_residual
 
 __all__ = [
@@ -19,6 +20,6 @@ __all__ = [
     "parallel_jaw_perturbations", "perturb_parallel_jaw_grasp", "perturb_suction_grasp",
     "robust_parallel_jaw_quality", "robust_suction_quality", "sample_conditions", "suction_perturbations",
     "NNLSResult", "lift_bounded_groups", "nnls", "resists", "wrench_residual", "GripperGeometry", "REWARD_FAILURES",
-    "HeapScene", "RewardParams", "RewardRecord", "heap_grasp_reward", "parallel_jaw_heap_reward", "stack_models",
-    "suction_heap_reward",
+    "HeapScene", "RewardParams", "RewardRecord", "heap_grasp_reward", "parallel_jaw_collisions",
+    "parallel_jaw_heap_reward", "stack_models", "suction_collisions", "suction_heap_reward",
 ]

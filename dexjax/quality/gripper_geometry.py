@@ -44,7 +44,8 @@ class GripperGeometry:
   Attributes:
     finger_thickness: finger size along the jaw axis, outward from the pad (YuMi-like 1 cm).
     finger_width: finger size along z, across the jaw axis and the approach (2 cm).
-    finger_length: finger size along the approach (4 cm).
+    finger_length: finger size along the approach (6 cm: the deepest image-sampler grasp, 5 cm below the
+      surface, keeps the palm out of the object; see docs/deviations.md).
     tip_depth: how far the fingertips reach beyond the grasp centre along the approach (1 cm).
     palm_depth: palm size along the approach, behind the fingers (2 cm).
     palm_width: palm size along the jaw axis (7 cm: the 5 cm opening plus two fingers).
@@ -61,7 +62,7 @@ class GripperGeometry:
 
   finger_thickness: float = struct.field(pytree_node=False, default=0.01)
   finger_width: float = struct.field(pytree_node=False, default=0.02)
-  finger_length: float = struct.field(pytree_node=False, default=0.04)
+  finger_length: float = struct.field(pytree_node=False, default=0.06)
   tip_depth: float = struct.field(pytree_node=False, default=0.01)
   palm_depth: float = struct.field(pytree_node=False, default=0.02)
   palm_width: float = struct.field(pytree_node=False, default=0.07)

@@ -6,7 +6,8 @@ S = 1 iff, in this order of checks (the first failing one names the `RewardRecor
    (`dexjax.quality.gripper_geometry`: fingers and palm, or cup and shaft, swept back along the approach by
    the standoff) lies deeper than ``collision_tolerance`` inside any heap object (its signed distance grid,
    queried in the object's frame) or the bin (below the floor z = 0, or inside a wall box of
-   `dexjax.sim.bin_boxes`). The surfaces meant to touch (finger pads, cup lip) are not sampled.
+   `dexjax.sim.bin_boxes`). The surfaces meant to touch (finger pads, cup lip) are not sampled. This check
+   alone is `parallel_jaw_collisions` / `suction_collisions` (also used by the supervisor).
 2. ``no_object`` / ``multiple_objects``: exactly one object is contacted. Parallel jaw: an object is contacted
    when it reaches more than ``collision_tolerance`` into the closing region between the pads (the jaws would
    squeeze it). Suction: when its surface comes within ``suction_contact_distance`` of the cup's mouth disc.
@@ -203,6 +204,34 @@ def _target_model(scene: HeapScene, target: jax.Array) -> ObjectModel:
   return jax.tree.map(lambda a: a[index], scene.models)
 
 
+def parallel_jaw_collisions(grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin,
+                            gripper: ParallelJawGripper = ParallelJawGripper(),
+                            params: RewardParams = RewardParams()) -> tuple[jax.Array, jax.Array]:
+  """Check 1 of the reward for one world-frame parallel-jaw grasp: (hit_object, hit_bin), () bools.
+
+  True when a sample of the fingers and palm (at the grasp's ``width``, swept back by the standoff; sizes from
+  ``params.geometry``, not from ``gripper``, which is accepted for symmetry with `suction_collisions`) lies
+  more than ``params.collision_tolerance`` inside any heap object, or inside the bin (`bin_collision`).
+  """
+  del gripper  # The jaw solids come from params.geometry and the grasp's width.
+  tol = params.collision_tolerance
+  body = to_world(parallel_jaw_pose(grasp), jaw_collision_points(params.geometry, grasp.width))
+  return jnp.any(slot_distances(scene, body) < -tol), bin_collision(body, bin_, tol)
+
+
+def suction_collisions(grasp: SuctionGrasp, scene: HeapScene, bin_: Bin, gripper: SuctionGripper = SuctionGripper(),
+                       params: RewardParams = RewardParams()) -> tuple[jax.Array, jax.Array]:
+  """Check 1 of the reward for one world-frame suction grasp: (hit_object, hit_bin), () bools.
+
+  As `parallel_jaw_collisions` for the cup (``gripper.cup_radius`` and ``cone_height``, without the lip slab)
+  and the tool shaft.
+  """
+  tol = params.collision_tolerance
+  body = to_world(suction_pose(grasp),
+                  suction_collision_points(params.geometry, gripper.cup_radius, gripper.cone_height))
+  return jnp.any(slot_distances(scene, body) < -tol), bin_collision(body, bin_, tol)
+
+
 def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin,
                              gripper: ParallelJawGripper = ParallelJawGripper(),
                              params: RewardParams = RewardParams(),
@@ -219,11 +248,9 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
     perturbations: robust-quality noise (default `parallel_jaw_perturbations`); its gravity is replaced by
       the world's.
   """
-  pose = parallel_jaw_pose(grasp)
   tol = params.collision_tolerance
-  body = to_world(pose, jaw_collision_points(params.geometry, grasp.width))
-  closing = to_world(pose, jaw_contact_points(params.geometry, grasp.width))
-  hit_object = jnp.any(slot_distances(scene, body) < -tol)
+  hit_object, hit_bin = parallel_jaw_collisions(grasp, scene, bin_, gripper, params)
+  closing = to_world(parallel_jaw_pose(grasp), jaw_contact_points(params.geometry, grasp.width))
   contacted = jnp.min(slot_distances(scene, closing), axis=1) < -tol
   target = _select_target(contacted, slot_distances(scene, grasp.center[None])[:, 0])
   obj_pose = scene.poses[jnp.maximum(target, 0)]
@@ -232,8 +259,7 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
   base = parallel_jaw_perturbations() if perturbations is None else perturbations
   robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper,
                                        _gravity_perturbations(base, rot, params.num_samples), params.quality)
-  return _record(hit_object, bin_collision(body, bin_, tol), contacted, target, robust.probability,
-                 params.threshold)
+  return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
 
 def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, bin_: Bin,
@@ -244,11 +270,8 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   Args: as `parallel_jaw_heap_reward`; ``perturbations`` defaults to `suction_perturbations` (gravity replaced
   by the world's).
   """
-  pose = suction_pose(grasp)
-  tol = params.collision_tolerance
-  body = to_world(pose, suction_collision_points(params.geometry, gripper.cup_radius, gripper.cone_height))
-  mouth = to_world(pose, suction_contact_points(params.geometry, gripper.cup_radius))
-  hit_object = jnp.any(slot_distances(scene, body) < -tol)
+  hit_object, hit_bin = suction_collisions(grasp, scene, bin_, gripper, params)
+  mouth = to_world(suction_pose(grasp), suction_contact_points(params.geometry, gripper.cup_radius))
   contacted = jnp.min(slot_distances(scene, mouth), axis=1) < params.suction_contact_distance
   target = _select_target(contacted, jnp.abs(slot_distances(scene, grasp.center[None])[:, 0]))
   obj_pose = scene.poses[jnp.maximum(target, 0)]
@@ -257,8 +280,7 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   base = suction_perturbations() if perturbations is None else perturbations
   robust = robust_suction_quality(key, _target_model(scene, target), local, gripper,
                                   _gravity_perturbations(base, rot, params.num_samples), params.quality)
-  return _record(hit_object, bin_collision(body, bin_, tol), contacted, target, robust.probability,
-                 params.threshold)
+  return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
 
 def heap_grasp_reward(key: jax.Array, grasp: ParallelJawGrasp | SuctionGrasp, scene: HeapScene, bin_: Bin,
