@@ -46,6 +46,8 @@ def _content(seed: int, index: int, num_images: int = 4, rows_per_image: int = 5
     "reward": rng.integers(0, 2, m).astype(np.int8),
     "robust_probability": rng.uniform(0, 1, m).astype(np.float32),
     "failure": rng.integers(0, 3, m).astype(np.int8),
+    "target_slot": rng.integers(-1, slots, m).astype(np.int8),
+    "policy": (rng.uniform(size=m) < 0.1).astype(np.int8),
     "image_index": np.repeat(np.arange(n), rows_per_image).astype(np.int32),
   }
   return images, rows

@@ -43,7 +43,7 @@ IMAGE_SCHEMA: dict[str, tuple[str, tuple]] = {
 
 #: Row-level fields (one grasp action each), leading axis M: name -> (dtype, trailing shape).
 ROW_SCHEMA: dict[str, tuple[str, tuple]] = {
-  "gripper": ("int8", ()),                        # gripper type code
+  "gripper": ("int8", ()),                        # GRIPPER_NAMES code
   "center": ("float32", (2,)),                    # grasp centre in the image, pixels (column u, row v)
   "angle": ("float32", ()),                       # in-image grasp axis angle, radians
   "grasp_depth": ("float32", ()),                 # depth of the grasp centre from the camera, metres
@@ -51,9 +51,16 @@ ROW_SCHEMA: dict[str, tuple[str, tuple]] = {
   "grasp_pose": ("float32", (4, 4)),              # gripper-to-world homogeneous transform, metres
   "reward": ("int8", ()),                         # S(x, u): 1 when collision-free, one object, robust
   "robust_probability": ("float32", ()),          # robust quality in [0, 1]
-  "failure": ("int8", ()),                        # failure-mode code, 0 for none
+  "failure": ("int8", ()),                        # dexjax.quality.REWARD_FAILURES code, 0 for none
+  "target_slot": ("int8", ()),                    # heap slot of the contacted object, -1 for none
+  "policy": ("int8", ()),                         # POLICY_NAMES code: which part of tau chose the action
   "image_index": ("int32", ()),                   # index of the row's image in this shard, in [0, N)
 }
+
+#: Row ``gripper`` codes (index = code).
+GRIPPER_NAMES = ("parallel_jaw", "suction")
+#: Row ``policy`` codes: uniform over the image's candidates, or the algorithmic supervisor.
+POLICY_NAMES = ("candidate", "supervisor")
 
 
 class ShardError(Exception):

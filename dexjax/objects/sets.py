@@ -3,6 +3,9 @@
 A set is described by a list of *sources*, each one of:
 
 * ``'builtin:NAME'`` (one built-in object) or ``'builtin:all'`` (every built-in object);
+* ``'builtin:level1'``, ``'builtin:level2'``, ``'builtin:level3'``: the first `LEVEL_SET_SIZE` (100) procedural
+  objects of that difficulty level (``'procedural:L{level}/0:100'``), the built-in object sets of dataset
+  generation;
 * ``'procedural:L{level}/{index}[@{seed}]'`` (one procedural object) or
   ``'procedural:L{level}/{start}:{stop}[@{seed}]'`` (objects start .. stop-1 of a level, Python slice
   semantics, e.g. ``'procedural:L2/0:1000'``);
@@ -28,6 +31,8 @@ from dexjax.objects.folder import FolderReport, LoadedObject, PreparedObject, Re
 from dexjax.objects.folder import load_file, prepare_object
 from dexjax.objects.procedural import PROCEDURAL_LEVELS, PROCEDURAL_PREFIX, procedural_spec
 
+#: Objects in each built-in level set ``'builtin:level{1,2,3}'``.
+LEVEL_SET_SIZE = 100
 _RANGE_PATTERN = re.compile(r'L([0-9])/(0|[1-9][0-9]*):(0|[1-9][0-9]*)(?:@(0|[1-9][0-9]*))?')
 
 
@@ -49,6 +54,8 @@ def expand_object_sources(sources: Iterable[str | os.PathLike[str]]) -> list[str
     source = os.fspath(source)
     if source == f'{BUILTIN_PREFIX}all':
       expanded.extend(f'{BUILTIN_PREFIX}{name}' for name in BUILTIN_OBJECTS)
+    elif source in tuple(f'{BUILTIN_PREFIX}level{level}' for level in PROCEDURAL_LEVELS):
+      expanded.extend(_procedural_range(f'{PROCEDURAL_PREFIX}L{source[-1]}/0:{LEVEL_SET_SIZE}'))
     elif source.startswith(PROCEDURAL_PREFIX) and ':' in source[len(PROCEDURAL_PREFIX):]:
       expanded.extend(_procedural_range(source))
     else:

@@ -1,0 +1,33 @@
+"""Dataset generation: the Dex-Net 4.0 collection policy over rendered, settled heaps, written as shards.
+
+Stages (each a module): `config` (every parameter, YAML), `cameras` (seed distribution or the user's camera),
+`supervisor` (Omega: robust grasp sets per object, mapped into a heap), `policy` (tau: Omega with probability
+epsilon, else uniform over the image's candidates), `labels` (one image: candidates, tau, reward S(x, u)),
+`pipeline` (one shard: settle, render, label), `parallel` (shards on processes or Ray), `run` (a whole run
+with resume), `report` (summary and preview picture). The CLI is ``python -m dexjax.generate``.
+"""
+
+from dexjax.generate.cameras import apply_camera_file, image_size, run_camera
+from dexjax.generate.config import (DatasetConfig, GenerateConfig, ObjectsConfig, config_from_dict, fingerprint,
+                                    load_generate_config, with_grippers)
+from dexjax.generate.labels import PARALLEL_JAW, SUCTION, ImageRows, LabelParams, label_image, pickable_mask
+from dexjax.generate.parallel import RunResult, run_tasks
+from dexjax.generate.pipeline import (NoObjectsError, ShardGenerator, close_process_generators, generate_shard,
+                                      label_params, supervisor_sets)
+from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
+from dexjax.generate.report import RowStats, format_summary, save_generation_png, summarize_rows
+from dexjax.generate.run import generate_dataset, num_shards, warm_caches
+from dexjax.generate.supervisor import (GraspSet, SupervisorParams, cached_grasp_sets, heap_grasp_sets,
+                                        parallel_jaw_grasp_set, parallel_jaw_supervisor_candidates,
+                                        suction_grasp_set, suction_supervisor_candidates)
+
+__all__ = [
+  'CANDIDATE', 'PARALLEL_JAW', 'SUCTION', 'SUPERVISOR', 'DatasetConfig', 'GenerateConfig', 'GraspSet', 'ImageRows',
+  'LabelParams', 'NoObjectsError', 'ObjectsConfig', 'PolicyParams', 'RowStats', 'RunResult', 'ShardGenerator',
+  'SupervisorParams', 'apply_camera_file', 'cached_grasp_sets', 'close_process_generators', 'collection_actions',
+  'config_from_dict', 'fingerprint', 'format_summary', 'generate_dataset', 'generate_shard', 'heap_grasp_sets',
+  'image_size', 'label_image', 'label_params', 'load_generate_config', 'num_shards', 'parallel_jaw_grasp_set',
+  'parallel_jaw_supervisor_candidates', 'pickable_mask', 'run_camera', 'run_tasks', 'save_generation_png',
+  'suction_grasp_set', 'suction_supervisor_candidates', 'summarize_rows', 'supervisor_draws', 'supervisor_sets',
+  'warm_caches', 'with_grippers',
+]

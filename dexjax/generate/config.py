@@ -1,0 +1,258 @@
+"""The configuration of a dataset-generation run: every parameter of the pipeline, read from YAML.
+
+`GenerateConfig` gathers the parameter dataclasses of each stage (heap distribution, settling, camera
+distribution, rendering and sensor noise, image samplers, grippers and their perturbation models, reward,
+supervisor, collection policy) plus the object sources and the dataset layout. Defaults are Dex-Net 4.0's;
+``configs/dexnet4.yaml`` spells them out. `load_generate_config` applies a YAML file on top of the defaults,
+then optionally a gripper file (``configs/quality.yaml`` layout) and a camera file, and checks every field
+(`dexjax.config.ConfigError` names the file and the dotted field).
+
+The content of shard i is a function of (`fingerprint` of this config, seed, i) only: the fingerprint covers
+every field that changes what is generated, and nothing else (not the image count, output directory or
+worker count).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any, Mapping
+
+from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override
+from dexjax.data.shards import config_fingerprint
+from dexjax.generate.policy import PolicyParams
+from dexjax.generate.supervisor import SupervisorParams
+from dexjax.quality.heap_reward import RewardParams
+from dexjax.quality.report import ReportSettings, settings_from_config
+from dexjax.render.distribution import CameraDistribution
+from dexjax.render.noise import SensorNoise
+from dexjax.render.rendering import BACKENDS as RENDER_BACKENDS
+from dexjax.render.rendering import RenderSettings
+from dexjax.sampling.image_samplers import AntipodalImageSampler, SuctionImageSampler
+from dexjax.sim.heap import Bin, HeapDistribution
+from dexjax.sim.scene import SettleSettings
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectsConfig:
+  """Which objects heaps are drawn from, and how they are modelled.
+
+  Attributes:
+    sources: object sources (`dexjax.objects.load_object_set`: ``builtin:NAME``, ``builtin:level2``,
+      ``procedural:L2/0:100``, mesh files, folders).
+    scale: factor applied to meshes read from files (e.g. 0.001 for millimetre meshes).
+    grid_size: signed-distance grid resolution of each object's model (reward and supervisor).
+  """
+
+  sources: tuple[str, ...] = ('builtin:level2',)
+  scale: float = 1.0
+  grid_size: int = 64
+
+
+@dataclasses.dataclass(frozen=True)
+class DatasetConfig:
+  """Layout of the dataset.
+
+  Attributes:
+    images_per_shard: rendered images per shard (a shard is the unit of work, resume and parallelism).
+    images_per_heap: cameras sampled per settled heap (each image is stored with its own rows).
+    render_backend: ``'auto'``, ``'gl'`` or ``'raycast'`` (`dexjax.render.DepthRenderer`).
+  """
+
+  images_per_shard: int = 16
+  images_per_heap: int = 1
+  render_backend: str = 'auto'
+
+
+@dataclasses.dataclass(frozen=True)
+class GenerateConfig:
+  """Every parameter of a generation run (defaults: Dex-Net 4.0; see the module docstring).
+
+  ``settle.bin`` is the bin of every stage (settling, rendering, reward); the parallel-jaw image sampler's
+  ``gripper_width`` is the gripper's ``max_width`` (set by `load_generate_config`). ``camera_intrinsics``
+  (fx, fy, cx, cy, width, height), when set, replaces the sampled intrinsics, and ``camera_pose`` (9 entries of
+  the camera-to-world rotation, row-major, then the position in metres) the sampled pose (see
+  `dexjax.generate.cameras`).
+  """
+
+  seed: int = 0
+  objects: ObjectsConfig = ObjectsConfig()
+  dataset: DatasetConfig = DatasetConfig()
+  heap: HeapDistribution = HeapDistribution()
+  settle: SettleSettings = SettleSettings()
+  camera: CameraDistribution = CameraDistribution()
+  camera_intrinsics: tuple[float, ...] = ()
+  camera_pose: tuple[float, ...] = ()
+  render: RenderSettings = RenderSettings()
+  noise: SensorNoise = SensorNoise()
+  parallel_jaw_sampler: AntipodalImageSampler = AntipodalImageSampler()
+  suction_sampler: SuctionImageSampler = SuctionImageSampler()
+  grippers: ReportSettings = ReportSettings()
+  reward: RewardParams = RewardParams()
+  supervisor: SupervisorParams = SupervisorParams()
+  policy: PolicyParams = PolicyParams()
+
+  @property
+  def bin(self) -> Bin:
+    return self.settle.bin
+
+
+_GRIPPER_SECTIONS = ('grippers', 'perturbations', 'quality')  # configs/quality.yaml's layout
+_TOP = ('seed', 'objects', 'dataset', 'heap', 'bin', 'settle', 'camera', 'render', 'noise', 'samplers', 'reward',
+        'supervisor', 'policy') + _GRIPPER_SECTIONS
+_SAMPLERS = ('parallel_jaw', 'suction')
+_REWARD_FIELDS = ('collision_tolerance', 'suction_contact_distance', 'threshold', 'num_samples')
+
+
+def _section(data: Mapping[str, Any], name: str, source: str) -> dict[str, Any] | None:
+  value = data.get(name)
+  if value is not None and not isinstance(value, Mapping):
+    raise ConfigError(source, name, f'expected a mapping of field: value, got {value!r}')
+  return dict(value) if value is not None else None
+
+
+def _objects(values: dict[str, Any] | None, source: str) -> ObjectsConfig:
+  values = dict(values or {})
+  sources = values.pop('sources', None)
+  objects = override(ObjectsConfig(), values, source=source, section='objects', minimum=0)
+  if sources is not None:
+    if isinstance(sources, str):
+      sources = [sources]
+    if not isinstance(sources, list) or not sources or not all(isinstance(s, str) and s for s in sources):
+      raise ConfigError(source, 'objects.sources', f'expected a non-empty list of object sources, got {sources!r}')
+    objects = dataclasses.replace(objects, sources=tuple(sources))
+  if objects.grid_size < 8 or objects.scale <= 0:
+    raise ConfigError(source, 'objects', f'expected grid_size >= 8 and scale > 0, got {objects.grid_size}, '
+                                         f'{objects.scale}')
+  return objects
+
+
+def _camera(config: GenerateConfig, values: dict[str, Any] | None, source: str) -> GenerateConfig:
+  """Applies the ``camera`` section: distribution fields, and ``file`` (relative to the config's folder)."""
+  from dexjax.generate.cameras import apply_camera_file  # pylint: disable=g-import-not-at-top
+  values = dict(values or {})
+  camera_file = values.pop('file', None)
+  dist = _checked('camera', override(config.camera, values, source=source, section='camera'), source)
+  config = dataclasses.replace(config, camera=dist)
+  if camera_file is None:
+    return config
+  if not isinstance(camera_file, str) or not camera_file:
+    raise ConfigError(source, 'camera.file', f'expected a path to an intrinsics or camera file, got {camera_file!r}')
+  return apply_camera_file(config, os.path.join(os.path.dirname(os.path.abspath(source)), camera_file))
+
+
+def _checked(where: str, params: Any, source: str) -> Any:
+  """``params.validate()`` with its ValueError turned into a `ConfigError` naming the file."""
+  try:
+    params.validate()
+  except ValueError as e:
+    raise ConfigError(source, where, str(e)) from None
+  return params
+
+
+def config_from_dict(data: Mapping[str, Any], source: str = '<config>') -> GenerateConfig:
+  """A `GenerateConfig` from a decoded YAML mapping (layout: ``configs/dexnet4.yaml``); unset fields keep defaults.
+
+  Raises:
+    ConfigError: an unknown section or field, a value of the wrong type or out of range.
+  """
+  check_sections(data, _TOP, source=source)
+  c = GenerateConfig()
+  seed = data.get('seed', c.seed)
+  if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+    raise ConfigError(source, 'seed', f'expected an integer >= 0, got {seed!r}')
+  dataset = override(c.dataset, _section(data, 'dataset', source), source=source, section='dataset', minimum=1)
+  if dataset.render_backend not in RENDER_BACKENDS:
+    raise ConfigError(source, 'dataset.render_backend', f'expected one of {RENDER_BACKENDS}, got '
+                                                         f'{dataset.render_backend!r}')
+  bin_ = _checked('bin', override(c.bin, _section(data, 'bin', source), source=source, section='bin'), source)
+  settle = override(c.settle, _section(data, 'settle', source), source=source, section='settle', minimum=0)
+  settle = _checked('settle', dataclasses.replace(settle, bin=bin_), source)
+  samplers = _section(data, 'samplers', source) or {}
+  check_sections(samplers, _SAMPLERS, source=source, section='samplers')
+  reward = _section(data, 'reward', source) or {}
+  check_sections(reward, _REWARD_FIELDS, source=source, section='reward')
+  grippers_data = {k: data[k] for k in _GRIPPER_SECTIONS if k in data}
+  grippers = settings_from_config(grippers_data, source) if grippers_data else c.grippers
+  config = GenerateConfig(
+      seed=seed,
+      objects=_objects(_section(data, 'objects', source), source),
+      dataset=dataset,
+      heap=override(c.heap, _section(data, 'heap', source), source=source, section='heap', minimum=0),
+      settle=settle,
+      render=_checked('render', override(c.render, _section(data, 'render', source), source=source,
+                                         section='render', minimum=0), source),
+      noise=_checked('noise', override(c.noise, _section(data, 'noise', source), source=source, section='noise',
+                                       minimum=0), source),
+      parallel_jaw_sampler=override(c.parallel_jaw_sampler, samplers.get('parallel_jaw'), source=source,
+                                    section='samplers.parallel_jaw', minimum=0),
+      suction_sampler=override(c.suction_sampler, samplers.get('suction'), source=source, section='samplers.suction',
+                               minimum=0),
+      grippers=grippers,
+      reward=override(c.reward, reward, source=source, section='reward', minimum=0),
+      supervisor=override(c.supervisor, _section(data, 'supervisor', source), source=source, section='supervisor',
+                          minimum=0),
+      policy=_checked('policy', override(c.policy, _section(data, 'policy', source), source=source,
+                                         section='policy', minimum=0), source))
+  return _camera(_tied(config), _section(data, 'camera', source), source)
+
+
+def _tied(config: GenerateConfig) -> GenerateConfig:
+  """Ties the parameters that must agree across stages: the jaw sampler's width is the gripper's opening."""
+  sampler = config.parallel_jaw_sampler.replace(gripper_width=config.grippers.parallel_jaw.max_width)
+  return dataclasses.replace(config, parallel_jaw_sampler=sampler)
+
+
+def with_grippers(config: GenerateConfig, path: str | os.PathLike[str]) -> GenerateConfig:
+  """``config`` with the grippers, their perturbation models and the quality settings of a gripper file
+  (``configs/quality.yaml`` layout; its ``num_samples`` and ``threshold`` are not used: the reward's are)."""
+  return _tied(dataclasses.replace(config, grippers=settings_from_config(load_yaml(path), os.fspath(path))))
+
+
+def load_generate_config(path: str | os.PathLike[str] | None = None, *,
+                         gripper_config: str | os.PathLike[str] | None = None,
+                         camera_config: str | os.PathLike[str] | None = None,
+                         objects: list[str] | None = None, seed: int | None = None) -> GenerateConfig:
+  """The run's config: defaults, then the YAML file ``path``, then the optional overrides.
+
+  Args:
+    path: a generation config (``configs/dexnet4.yaml`` layout); None: the defaults.
+    gripper_config: a gripper file (``configs/quality.yaml`` layout), replacing the ``grippers`` section.
+    camera_config: a camera file: a YAML mapping of `CameraDistribution` fields (the pose and intrinsics
+      ranges), or an intrinsics / camera file read by `dexjax.render.load_intrinsics` / `load_camera` (JSON,
+      ROS CameraInfo); see `dexjax.generate.cameras`.
+    objects: object sources replacing ``objects.sources``.
+    seed: replaces ``seed``.
+  """
+  config = config_from_dict(load_yaml(path), os.fspath(path)) if path is not None else GenerateConfig()
+  if gripper_config is not None:
+    config = with_grippers(config, gripper_config)
+  if camera_config is not None:
+    from dexjax.generate.cameras import apply_camera_file  # pylint: disable=g-import-not-at-top
+    config = apply_camera_file(config, camera_config)
+  if objects:
+    config = dataclasses.replace(config, objects=dataclasses.replace(config.objects, sources=tuple(objects)))
+  if seed is not None:
+    if seed < 0:
+      raise ConfigError('--seed', 'seed', f'expected an integer >= 0, got {seed}')
+    config = dataclasses.replace(config, seed=seed)
+  return config
+
+
+def fingerprint(config: GenerateConfig) -> str:
+  """`dexjax.data.config_fingerprint` of everything that determines a shard's content (not the seed)."""
+  data = as_dict(config)
+  data.pop('seed')
+  data['settle'].pop('nthread')  # threads change speed, not results
+  return config_fingerprint(_plain(data))
+
+
+def _plain(value: Any) -> Any:
+  """JSON-ready copy: tuples to lists, NumPy scalars to Python numbers."""
+  if isinstance(value, dict):
+    return {str(k): _plain(v) for k, v in value.items()}
+  if isinstance(value, (list, tuple)):
+    return [_plain(v) for v in value]
+  if hasattr(value, 'item'):
+    return value.item()
+  return value

@@ -1,0 +1,133 @@
+"""A whole generation run: plan the shards, skip the finished ones, run the rest in parallel, summarise.
+
+`generate_dataset` is the library side of ``python -m dexjax.generate``. The run is ``ceil(num_images /
+images_per_shard)`` shards; worker i of N (``--shard i/N``) takes the shards with ``index % N == i``. Shards
+already finished in ``out_dir`` (valid file of the same config and seed) are skipped, so rerunning a killed
+run resumes it with no lost or duplicated rows. The resolved config is written to ``out_dir/config.json``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from dexjax.config import as_dict
+from dexjax.data.manifest import open_manifest, pending_shards
+from dexjax.data.shards import read_shard, shard_path
+from dexjax.generate.config import GenerateConfig, fingerprint
+from dexjax.generate.parallel import run_tasks
+from dexjax.generate.pipeline import close_process_generators, generate_shard, supervisor_sets
+from dexjax.generate.report import RowStats
+from dexjax.objects.sets import load_object_set, prepare_object_set
+
+CONFIG_NAME = 'config.json'
+PREVIEW_NAME = 'preview.png'
+
+
+def num_shards(config: GenerateConfig, num_images: int) -> int:
+  """Shards needed for at least ``num_images`` images (whole shards: the last one is not cut short)."""
+  if num_images < 1:
+    raise ValueError(f'--num-images: expected an integer >= 1, got {num_images}')
+  return math.ceil(num_images / config.dataset.images_per_shard)
+
+
+def _write_config(out_dir: Path, config: GenerateConfig) -> None:
+  data = {'fingerprint': fingerprint(config), 'config': as_dict(config)}
+  tmp = out_dir / f'{CONFIG_NAME}.tmp-{os.getpid()}'
+  tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=str))
+  os.replace(tmp, out_dir / CONFIG_NAME)
+
+
+def warm_caches(config: GenerateConfig, cache_dir: str | None = None, progress: bool = False) -> int:
+  """Builds the object models, collision hulls and supervisor grasp sets into the cache once, before worker
+  processes start (so they load instead of each computing them). Returns the number of usable objects."""
+  report = load_object_set(config.objects.sources, scale=config.objects.scale)
+  prepared, _ = prepare_object_set(report, cache_dir=cache_dir, progress=progress,
+                                   grid_size=config.objects.grid_size)
+  supervisor_sets(config, [p.model for p in prepared], cache_dir)
+  return len(prepared)
+
+
+def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], num_images: int, *,
+                     assignment: tuple[int, int] = (0, 1), backend: str = 'serial', workers: int = 1,
+                     ray_address: str | None = None, cache_dir: str | None = None, progress: bool = True,
+                     preview: bool = True) -> dict[str, Any]:
+  """Generates (or resumes) a dataset in ``out_dir`` and returns the run's summary (plain JSON).
+
+  Args:
+    config: the run's `GenerateConfig`.
+    out_dir: output directory (shards, ``manifest.json``, ``config.json``, ``preview.png``).
+    num_images: images wanted (rounded up to whole shards).
+    assignment: (i, N): this worker writes the shards with ``index % N == i``.
+    backend: ``'serial'``, ``'process'`` or ``'ray'`` (`dexjax.generate.run_tasks`).
+    workers: parallel workers of the backend.
+    ray_address: an existing Ray cluster to join (``'auto'`` or ``'host:port'``); None starts a local one.
+    cache_dir: object and supervisor cache (default ``$DEXJAX_CACHE`` or ``~/.cache/dexjax/objects``).
+    progress: progress bars on stderr.
+    preview: write ``preview.png`` (first image of the first finished shard: grasps coloured by reward, crops).
+
+  Returns:
+    ``rows``, ``positive_rate`` and per-gripper counts (rows, positives, positive rate, supervisor rows,
+    failure reasons; `dexjax.generate.RowStats`), ``rows_per_s`` of this invocation, ``seconds`` per stage
+    (summed over workers), shard counts (``shards``, ``skipped``, ``written``, ``failed`` with reasons),
+    heap counts, and the paths written.
+  """
+  out = Path(out_dir)
+  total = num_shards(config, num_images)
+  open_manifest(out, fingerprint(config), config.seed, total)
+  _write_config(out, config)
+  todo = pending_shards(out, total, fingerprint(config), assignment, seed=config.seed)
+  mine = len(range(assignment[0], total, assignment[1]))
+  parallel = backend != 'serial' and workers > 1
+  if parallel:
+    config = dataclasses.replace(config, settle=config.settle.replace(nthread=1))  # one core per worker
+  if todo and parallel:
+    warm_caches(config, cache_dir, progress)
+  stats, heap_counts = RowStats(), {'heaps': 0, 'diverged_heaps': 0, 'objects_left_bin': 0, 'images': 0}
+  stage_seconds = {'settle': 0.0, 'render': 0.0, 'label': 0.0, 'write': 0.0}
+
+  def on_result(index: int, result: dict[str, Any]) -> None:
+    del index
+    stats.add(result['rows'])
+    for k in heap_counts:
+      heap_counts[k] += result[k]
+    for k, v in result['seconds'].items():
+      stage_seconds[k] += v
+
+  clock = time.perf_counter()
+  task = functools.partial(generate_shard, config=config, out_dir=os.fspath(out), cache_dir=cache_dir)
+  try:
+    result = run_tasks(task, todo, backend=backend if parallel else 'serial', workers=workers, progress=progress,
+                       on_result=on_result, ray_address=ray_address)
+  finally:
+    close_process_generators()  # serial runs made the generator in this process
+  seconds = time.perf_counter() - clock
+  summary = stats.to_dict(seconds)
+  summary.update(heap_counts)
+  summary['stage_seconds'] = stage_seconds
+  summary['shards'] = {'total': total, 'assigned': mine, 'skipped': mine - len(todo),
+                       'written': len(result.results), 'failed': {str(k): v for k, v in result.failures.items()}}
+  summary['out_dir'] = os.fspath(out)
+  if preview:
+    summary['preview'] = _preview(out, total, assignment)
+  return summary
+
+
+def _preview(out: Path, total: int, assignment: tuple[int, int]) -> str | None:
+  """Writes ``preview.png`` from the first finished shard of this worker; returns its path (None if none)."""
+  from dexjax.generate.report import save_generation_png  # pylint: disable=g-import-not-at-top (matplotlib)
+  for index in range(assignment[0], total, assignment[1]):
+    path = shard_path(out, index)
+    if path.exists():
+      save_generation_png(out / PREVIEW_NAME, read_shard(path), 0)
+      return os.fspath(out / PREVIEW_NAME)
+  return None
+
+
+__all__ = ['CONFIG_NAME', 'PREVIEW_NAME', 'generate_dataset', 'num_shards', 'warm_caches']

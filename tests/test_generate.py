@@ -1,0 +1,239 @@
+"""Dataset generation end to end (in-process): determinism, atomic shards and resume, rows and their labels.
+
+One small run (200 x 200 images, 2 images per shard, 16 actions per gripper and image, a handful of small
+objects) is generated once per module and shared; the labeller compiles once for it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import zipfile
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dexjax.config import ConfigError
+from dexjax.data import (GRIPPER_NAMES, IMAGE_SCHEMA, ROW_SCHEMA, iterate_rows, list_shards, load_manifest, read_shard,
+                         shard_path)
+from dexjax.generate.config import GenerateConfig, config_from_dict, fingerprint, load_generate_config
+from dexjax.generate.pipeline import ShardGenerator
+from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions
+from dexjax.generate.run import generate_dataset, num_shards
+from dexjax.quality import REWARD_FAILURES
+from dexjax.sampling import grasp_crop
+
+SMALL = {
+  'seed': 3,
+  'objects': {'sources': ['builtin:cube', 'builtin:cylinder', 'builtin:l_shape', 'procedural:L1/0:3'],
+              'grid_size': 32},
+  'dataset': {'images_per_shard': 2},
+  'heap': {'min_count': 3, 'max_count': 5},
+  'camera': {'focal': [220.0, 240.0], 'cx': [99.0, 101.0], 'cy': [99.0, 101.0], 'width': 200, 'height': 200},
+  'samplers': {'parallel_jaw': {'num_grasps': 48, 'num_edges': 256, 'boundary': 30.0},
+               'suction': {'num_grasps': 48, 'boundary': 30.0}},
+  'supervisor': {'num_grasps': 8, 'boundary': 30.0},
+  'policy': {'actions_per_gripper': 16, 'epsilon': 0.25},
+}
+NUM_IMAGES = 4
+
+
+@pytest.fixture(scope='module')
+def run(tmp_path_factory):
+  """(config, output directory, cache directory, summary) of the shared small run."""
+  cache = tmp_path_factory.mktemp('generate_cache')
+  out = tmp_path_factory.mktemp('generate_out')
+  config = config_from_dict(SMALL, 'small.yaml')
+  summary = generate_dataset(config, out, NUM_IMAGES, cache_dir=str(cache), progress=False)
+  return config, out, cache, summary
+
+
+def test_dexnet4_yaml_spells_out_the_defaults():
+  config = load_generate_config('configs/dexnet4.yaml')
+  assert config == GenerateConfig()
+  assert fingerprint(config) == fingerprint(GenerateConfig())
+
+
+def test_bad_config_names_file_and_field(tmp_path):
+  with pytest.raises(ConfigError, match=r"bad.yaml: policy.epsilon: expected a finite number"):
+    config_from_dict({'policy': {'epsilon': 'often'}}, 'bad.yaml')
+  with pytest.raises(ConfigError, match=r"bad.yaml: policy.*epsilon.*\[0, 1\]"):
+    config_from_dict({'policy': {'epsilon': 2.0}}, 'bad.yaml')
+  with pytest.raises(ConfigError, match=r"bad.yaml: samplers.parallel_jaw.num_grasps: expected an integer"):
+    config_from_dict({'samplers': {'parallel_jaw': {'num_grasps': 1.5}}}, 'bad.yaml')
+  with pytest.raises(ConfigError, match=r"bad.yaml: camerra: unknown section"):
+    config_from_dict({'camerra': {}}, 'bad.yaml')
+  with pytest.raises(ConfigError, match=r"bad.yaml: objects.sources: expected a non-empty list"):
+    config_from_dict({'objects': {'sources': []}}, 'bad.yaml')
+  path = tmp_path / 'cam.json'
+  path.write_text(json.dumps({'fx': 500.0, 'fy': 510.0, 'cx': 160.0, 'cy': 120.0, 'width': 320, 'height': -1}))
+  with pytest.raises(ConfigError, match=r'cam.json.*height'):
+    load_generate_config(camera_config=path)
+
+
+def test_fingerprint_covers_content_not_speed():
+  base = GenerateConfig()
+  assert fingerprint(base.__class__(seed=9)) == fingerprint(base)  # the seed is stored separately
+  threads = base.__class__(settle=base.settle.replace(nthread=1))
+  assert fingerprint(threads) == fingerprint(base)
+  assert fingerprint(config_from_dict({'policy': {'epsilon': 0.02}})) != fingerprint(base)
+
+
+def test_camera_files_fix_intrinsics_or_replace_ranges(tmp_path):
+  intrinsics = tmp_path / 'camera_info.yaml'
+  intrinsics.write_text('width: 320\nheight: 240\nK: [300.0, 0.0, 160.5, 0.0, 305.0, 119.5, 0.0, 0.0, 1.0]\n')
+  config = load_generate_config(camera_config=intrinsics)
+  assert config.camera_intrinsics == (300.0, 305.0, 160.5, 119.5, 320.0, 240.0) and config.camera_pose == ()
+  from dexjax.generate.cameras import image_size, run_camera
+  camera = run_camera(jax.random.key(0), config)
+  assert image_size(config) == (320, 240)
+  assert (camera.intrinsics.width, camera.intrinsics.height) == (320, 240)
+  assert float(camera.intrinsics.fy) == 305.0
+  ranges = tmp_path / 'ranges.yaml'
+  ranges.write_text('radius: [0.5, 0.5]\nphi_deg: [0.0, 0.0]\n')
+  config = load_generate_config(camera_config=ranges)
+  camera = run_camera(jax.random.key(1), config)
+  assert config.camera.radius == (0.5, 0.5)
+  assert np.linalg.norm(np.asarray(camera.position) - [*np.asarray(camera.position)[:2], 0.0]) == pytest.approx(0.5)
+
+
+def test_collection_policy_mixes_supervisor_and_distinct_candidates():
+  params = PolicyParams(epsilon=0.3, actions_per_gripper=20)
+  valid = jnp.arange(40) % 2 == 0  # 20 valid candidates
+  eligible = jnp.zeros(30, bool).at[jnp.array([3, 7])].set(True)
+  sources, indices = [], []
+  for seed in range(200):
+    source, index, ok = collection_actions(jax.random.key(seed), valid, eligible, params)
+    source, index, ok = np.asarray(source), np.asarray(index), np.asarray(ok)
+    cand = index[(source == CANDIDATE) & ok]
+    assert np.all(cand % 2 == 0) and len(set(cand)) == len(cand)  # valid and without replacement
+    assert set(index[source == SUPERVISOR]) <= {3, 7}
+    assert ok.all()  # 20 valid candidates always suffice
+    sources.append(source)
+    indices.append(index[source == SUPERVISOR])
+  share = np.mean(np.concatenate(sources) == SUPERVISOR)
+  assert share == pytest.approx(0.3, abs=0.03)
+  sup = np.concatenate(indices)
+  assert abs(np.mean(sup == 3) - 0.5) < 0.08  # uniform among the eligible
+  # No eligible supervisor grasp: every action falls back to the candidates; too few candidates: dropped.
+  source, _, ok = collection_actions(jax.random.key(0), valid.at[4:].set(False), jnp.zeros(30, bool), params)
+  assert np.all(np.asarray(source) == CANDIDATE) and int(np.asarray(ok).sum()) == 2
+
+
+def test_run_writes_every_shard_with_valid_rows(run):
+  config, out, _, summary = run
+  assert num_shards(config, NUM_IMAGES) == 2 == summary['shards']['written']
+  assert [p.name for p in list_shards(out)] == ['shard-000000.npz', 'shard-000001.npz']
+  assert json.loads((out / 'config.json').read_text())['fingerprint'] == fingerprint(config)
+  total = 0
+  for path in list_shards(out):
+    shard = read_shard(path)
+    images, rows = shard.images, shard.rows
+    assert set(images) == set(IMAGE_SCHEMA) and set(rows) == set(ROW_SCHEMA)
+    assert images['depth'].shape == (2, 200, 200)
+    n = len(rows['gripper'])
+    total += n
+    assert n <= 2 * 2 * 16 and n >= 2 * 16  # both grippers in every image, at most A rows each
+    for g in range(len(GRIPPER_NAMES)):
+      per_image = np.bincount(rows['image_index'][rows['gripper'] == g], minlength=2)
+      assert np.all(per_image <= 16)
+    # The label is consistent: reward 1 exactly when no failure, and then the probability is over 0.5.
+    assert np.array_equal(rows['reward'] == 1, rows['failure'] == 0)
+    assert np.all(rows['robust_probability'][rows['reward'] == 1] > 0.5)
+    # A grasped object is a slot of the image's heap.
+    slots = rows['target_slot']
+    contacted = slots >= 0
+    assert np.all(images['object_ids'][rows['image_index'][contacted], slots[contacted]] >= 0)
+    assert np.all(slots[rows['failure'] == REWARD_FAILURES.index('no_object')] == -1)
+    # The 3-D pose sits at the image grasp: its origin projects to the centre pixel at the grasp depth.
+    k = images['camera_intrinsics'][rows['image_index']]
+    rot, pos = images['camera_rotation'][rows['image_index']], images['camera_translation'][rows['image_index']]
+    local = np.einsum('nji,nj->ni', rot, rows['grasp_pose'][:, :3, 3] - pos)
+    np.testing.assert_allclose(local[:, 2], rows['grasp_depth'], atol=1e-4)
+    np.testing.assert_allclose(k[:, 0] * local[:, 0] / local[:, 2] + k[:, 2], rows['center'][:, 0], atol=0.05)
+  assert total == summary['rows']
+
+
+def test_positive_rates_per_gripper_are_reported_and_mixed(run):
+  _, _, _, summary = run
+  for name in GRIPPER_NAMES:
+    stats = summary['grippers'][name]
+    assert stats['rows'] > 0
+    assert 0.0 < stats['positive_rate'] < 1.0, (name, stats)
+    assert sum(stats['failures'].values()) == stats['rows']
+  assert summary['rows_per_s'] > 0 and set(summary['stage_seconds']) == {'settle', 'render', 'label', 'write'}
+
+
+def test_same_seed_gives_bit_identical_shards(run, tmp_path):
+  config, out, cache, _ = run
+  with ShardGenerator(config, cache_dir=str(cache)) as generator:  # a second generator: fresh renderer and keys
+    images, rows, _ = generator.generate(1)
+  from dexjax.data import finish_shard, open_manifest
+  open_manifest(tmp_path, fingerprint(config), config.seed, 2)
+  finish_shard(tmp_path, 1, images, rows, {'config_fingerprint': fingerprint(config), 'seed': config.seed})
+  digest = lambda p: hashlib.sha256(p.read_bytes()).hexdigest()
+  assert digest(shard_path(tmp_path, 1)) == digest(shard_path(out, 1))
+
+
+def test_interrupted_shard_is_invisible_and_regenerated(run, tmp_path, monkeypatch):
+  config, out, cache, _ = run
+  original = shard_path(out, 1).read_bytes()
+  calls = {'n': 0}
+  real_open = zipfile.ZipFile.open
+
+  def dying_open(self, name, mode='r', **kwargs):
+    if mode == 'w' and self.filename and 'shard-000001' in str(self.filename):
+      calls['n'] += 1
+      if calls['n'] == 3:  # die in the middle of the file
+        raise KeyboardInterrupt('killed while writing')
+    return real_open(self, name, mode, **kwargs)
+
+  monkeypatch.setattr(zipfile.ZipFile, 'open', dying_open)
+  with pytest.raises(KeyboardInterrupt):
+    generate_dataset(config, tmp_path, NUM_IMAGES, cache_dir=str(cache), progress=False, preview=False)
+  monkeypatch.undo()
+  assert shard_path(tmp_path, 0).exists() and not shard_path(tmp_path, 1).exists()
+  assert sorted(load_manifest(tmp_path).shards) == [0]
+  assert [p.name for p in list_shards(tmp_path)] == ['shard-000000.npz']
+  rows_before = sum(len(b['gripper']) for b in iterate_rows(tmp_path, split='train', val_fraction=0.0))
+  assert rows_before == read_shard(shard_path(tmp_path, 0)).meta['num_rows']
+  summary = generate_dataset(config, tmp_path, NUM_IMAGES, cache_dir=str(cache), progress=False, preview=False)
+  assert summary['shards']['skipped'] == 1 and summary['shards']['written'] == 1
+  assert shard_path(tmp_path, 1).read_bytes() == original
+  assert not list(tmp_path.glob('*.tmp-*'))
+
+
+def test_corrupt_shard_is_regenerated_and_other_config_is_refused(run, tmp_path):
+  config, out, cache, _ = run
+  for index in (0, 1):
+    shard_path(tmp_path, index).parent.mkdir(exist_ok=True)
+    shard_path(tmp_path, index).write_bytes(shard_path(out, index).read_bytes())
+  (tmp_path / 'manifest.json').write_text((out / 'manifest.json').read_text())
+  shard_path(tmp_path, 1).write_bytes(shard_path(out, 1).read_bytes()[:1000])  # truncated on disk
+  with pytest.warns(RuntimeWarning, match='shard-000001.npz'):
+    summary = generate_dataset(config, tmp_path, NUM_IMAGES, cache_dir=str(cache), progress=False, preview=False)
+  assert summary['shards']['written'] == 1
+  assert shard_path(tmp_path, 1).read_bytes() == shard_path(out, 1).read_bytes()
+  other = config_from_dict(dict(SMALL, policy={'actions_per_gripper': 8}))
+  from dexjax.data import ConfigMismatchError
+  with pytest.raises(ConfigMismatchError, match='another run'):
+    generate_dataset(other, tmp_path, NUM_IMAGES, cache_dir=str(cache), progress=False, preview=False)
+
+
+def test_crops_of_rows_are_centred_on_the_grasp(run):
+  _, out, _, _ = run
+  shard = read_shard(shard_path(out, 0))
+  rows, depth = shard.rows, shard.images['depth']
+  # A candidate suction row: its centre is a pixel and its depth that pixel's depth.
+  i = int(np.flatnonzero((rows['gripper'] == 1) & (rows['policy'] == CANDIDATE))[0])
+  crop = np.asarray(grasp_crop(jnp.asarray(depth[rows['image_index'][i]]), jnp.asarray(rows['center'][i]),
+                               jnp.asarray(rows['angle'][i]), crop_size=32))
+  assert crop[16, 16] == pytest.approx(rows['grasp_depth'][i], abs=1e-6)
+
+
+def test_preview_png_written(run):
+  _, out, _, summary = run
+  assert summary['preview'] == str(out / 'preview.png')
+  assert (out / 'preview.png').stat().st_size > 10_000
