@@ -161,6 +161,30 @@ def test_corrupt_shard_is_reported_and_listed_again(tmp_path):
   assert pending_shards(tmp_path, 3, FP) == []
 
 
+def test_a_run_may_grow_but_not_shrink(tmp_path):
+  _dataset(tmp_path, num_shards=2)
+  assert open_manifest(tmp_path, FP, SEED, 4).num_shards == 4
+  assert pending_shards(tmp_path, 4, FP) == [2, 3] and sorted(load_manifest(tmp_path).shards) == [0, 1]
+  with pytest.raises(ConfigMismatchError, match="field 'num_shards': expected at least 4"):
+    open_manifest(tmp_path, FP, SEED, 3)
+
+
+def test_recorded_shards_of_the_recorded_size_are_not_reread_unless_verified(tmp_path, monkeypatch):
+  _dataset(tmp_path, num_shards=3)
+  assert load_manifest(tmp_path).shards[1].size == shard_path(tmp_path, 1).stat().st_size
+  data = bytearray(shard_path(tmp_path, 1).read_bytes())
+  data[len(data) // 2] ^= 0xFF  # same size, corrupt content (bit rot, not a torn write)
+  shard_path(tmp_path, 1).write_bytes(bytes(data))
+  import dexjax.data.manifest as manifest_module
+  reads = []
+  real = manifest_module.read_shard
+  monkeypatch.setattr(manifest_module, "read_shard", lambda path: reads.append(path) or real(path))
+  assert pending_shards(tmp_path, 3, FP) == [] and reads == []
+  with pytest.warns(RuntimeWarning, match="shard-000001.npz"):
+    assert pending_shards(tmp_path, 3, FP, verify=True) == [1]
+  assert len(reads) == 3
+
+
 def test_other_config_in_the_directory_raises(tmp_path):
   open_manifest(tmp_path, FP, SEED, 2)
   _finish(tmp_path, 0)

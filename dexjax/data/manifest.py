@@ -44,6 +44,7 @@ class ShardRecord:
   num_images: int
   num_rows: int
   sha256: str
+  size: int = -1  # bytes; -1 in manifests written before sizes were recorded
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,7 +90,11 @@ def _check_run(where: str, found: tuple, expected: tuple) -> None:
 
 
 def open_manifest(out_dir: str | os.PathLike, fingerprint: str, seed: int, num_shards: int) -> Manifest:
-  """Loads the manifest of ``out_dir``, creating it if absent; raises `ConfigMismatchError` for another run."""
+  """Loads the manifest of ``out_dir``, creating it if absent; raises `ConfigMismatchError` for another run.
+
+  A run may grow: a larger ``num_shards`` than recorded extends it (shard i does not depend on the count); a
+  smaller one raises `ConfigMismatchError` (the directory already promises more shards).
+  """
   out_dir = Path(out_dir)
   out_dir.mkdir(parents=True, exist_ok=True)
   with _manifest_lock(out_dir):
@@ -97,11 +102,15 @@ def open_manifest(out_dir: str | os.PathLike, fingerprint: str, seed: int, num_s
     if manifest is None:
       manifest = Manifest(fingerprint, seed, num_shards)
       _save_manifest(out_dir, manifest)
-  _check_run(f"manifest '{out_dir / MANIFEST_NAME}'", (manifest.config_fingerprint, manifest.seed),
-             (fingerprint, seed))
+    _check_run(f"manifest '{out_dir / MANIFEST_NAME}'", (manifest.config_fingerprint, manifest.seed),
+               (fingerprint, seed))
+    if manifest.num_shards < num_shards:
+      manifest = dataclasses.replace(manifest, num_shards=num_shards)
+      _save_manifest(out_dir, manifest)
   if manifest.num_shards != num_shards:
-    raise ConfigMismatchError(f"manifest '{out_dir / MANIFEST_NAME}': field 'num_shards': expected {num_shards}, "
-                              f"got {manifest.num_shards}; use a new --out directory")
+    raise ConfigMismatchError(f"manifest '{out_dir / MANIFEST_NAME}': field 'num_shards': expected at least "
+                              f"{manifest.num_shards} (this run's size), got {num_shards}; ask for at least as "
+                              "many images or use a new --out directory")
   return manifest
 
 
@@ -118,7 +127,8 @@ def record_shard(out_dir: str | os.PathLike, index: int) -> ShardRecord:
   out_dir = Path(out_dir)
   path = shard_path(out_dir, index)
   shard = read_shard(path)
-  record = ShardRecord(index, path.name, shard.meta["num_images"], shard.meta["num_rows"], file_sha256(path))
+  record = ShardRecord(index, path.name, shard.meta["num_images"], shard.meta["num_rows"], file_sha256(path),
+                       path.stat().st_size)
   with _manifest_lock(out_dir):
     manifest = load_manifest(out_dir)
     if manifest is None:
@@ -154,12 +164,14 @@ def _shard_status(out_dir: Path, index: int, fingerprint: str, seed: int | None)
 
 
 def pending_shards(out_dir: str | os.PathLike, num_shards: int, fingerprint: str,
-                   assignment: tuple[int, int] = (0, 1), seed: int | None = None) -> list[int]:
+                   assignment: tuple[int, int] = (0, 1), seed: int | None = None, verify: bool = False) -> list[int]:
   """Shard indices worker i of N still has to write (round robin: ``index % N == i``), ascending.
 
   A shard is done if its file reads and validates and its meta matches ``fingerprint`` (and ``seed`` if given);
   a corrupt file is warned about and listed again; a valid shard of another config raises `ConfigMismatchError`.
-  Valid shards missing from the manifest (a run killed between writing and recording) are recorded.
+  Valid shards missing from the manifest (a run killed between writing and recording) are recorded. A shard the
+  manifest lists with its file's current size is taken as done without reading it (shards are renamed into
+  place complete, so a size match rules out a torn write), unless ``verify``: then every file is read.
   """
   worker, num_workers = assignment
   if not 0 <= worker < num_workers:
@@ -171,11 +183,21 @@ def pending_shards(out_dir: str | os.PathLike, num_shards: int, fingerprint: str
                manifest.seed if seed is not None else None), (fingerprint, seed))
   pending = []
   for index in range(worker, num_shards, num_workers):
+    record = manifest.shards.get(index) if manifest is not None else None
+    if not verify and record is not None and record.size >= 0 and _size(shard_path(out_dir, index)) == record.size:
+      continue
     if not _shard_status(out_dir, index, fingerprint, seed):
       pending.append(index)
     elif manifest is not None and index not in manifest.shards:
       record_shard(out_dir, index)
   return pending
+
+
+def _size(path: Path) -> int:
+  try:
+    return path.stat().st_size
+  except FileNotFoundError:
+    return -2
 
 
 _ASSIGNMENT = re.compile(r"\s*(\d+)\s*/\s*(\d+)\s*")
