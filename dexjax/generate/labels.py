@@ -158,19 +158,19 @@ def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Ca
   Returns:
     `ImageRows` with 2A rows: parallel jaws first.
   """
-  k_pj, k_su, k_rows_pj, k_rows_su = jax.random.split(key, 4)
+  k_pj, k_su, k_rows_pj, k_rows_su, k_sup_pj, k_sup_su = jax.random.split(key, 6)
   pick = pickable_mask(depth, camera, params.bin, params.policy.floor_clearance)
   pj_cands, pj_valid = sample_antipodal_image_grasps(k_pj, depth, camera, params.parallel_jaw_sampler, mask=pick)
   su_cands, su_valid = sample_suction_image_grasps(k_su, depth, camera, params.suction_sampler, mask=pick)
 
   def pj_pool():
     return sup.parallel_jaw_supervisor_candidates(parallel_jaw_sets, scene, params.bin, camera, segmask,
-                                                  params.supervisor, params.parallel_jaw, params.reward)
+                                                  params.supervisor, params.parallel_jaw, params.reward, k_sup_pj)
 
   def su_pool():
     return sup.suction_supervisor_candidates(suction_sets, scene, params.bin, camera, segmask, params.supervisor,
                                              params.suction, params.reward,
-                                             depth if rendered_depth is None else rendered_depth)
+                                             depth if rendered_depth is None else rendered_depth, k_sup_su)
 
   def pj_label(k, cam, g):
     grasp = parallel_jaw_grasp_3d(cam, g)

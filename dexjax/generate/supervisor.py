@@ -89,6 +89,8 @@ class SupervisorParams:
     depth_tolerance: with a rendered depth image, a suction target is visible only when its camera-frame z is
       within this of the rendered depth at its pixel, metres (5 mm).
     num_grasps: static, grasps sampled per object and gripper K (100).
+    max_checked: static, grasps per image whose collision test runs when the candidates get a PRNG key (32;
+      see `parallel_jaw_supervisor_candidates`).
     num_samples: static, Monte-Carlo draws M of the robust quality (25).
     sampler: settings of the antipodal (parallel-jaw) sampler.
   """
@@ -99,6 +101,7 @@ class SupervisorParams:
   boundary: float = 68.0
   depth_tolerance: float = 0.005
   num_grasps: int = struct.field(pytree_node=False, default=100)
+  max_checked: int = struct.field(pytree_node=False, default=32)
   num_samples: int = struct.field(pytree_node=False, default=robust.SUPERVISOR_SAMPLES)
   sampler: AntipodalSampler = AntipodalSampler()
 
@@ -327,25 +330,24 @@ def _visible(uv, z, slot, mask, depth, params: SupervisorParams) -> jax.Array:
   return inside & seen
 
 
-def _jaw_candidate(grasp, quality, valid, slot, scene, bin_, camera, mask, params, gripper, reward_params):
+def _jaw_candidate(grasp, quality, valid, slot, scene, camera, mask, params):
+  """Image grasp of one set grasp and whether it passes every test but the collision test."""
   center, axis = _to_camera(scene.poses[slot], camera, grasp.center, grasp.axis)
   tilt = jnp.arcsin(jnp.clip(jnp.abs(axis[2]), 0.0, 1.0))
   uv = _pixel(camera, center)
   image = ImageParallelJawGrasp(center=uv, angle=jnp.arctan2(axis[1], axis[0]), depth=center[2], width=grasp.width)
-  hit_object, hit_bin = parallel_jaw_collisions(parallel_jaw_grasp_3d(camera, image), scene, bin_, gripper,
-                                                reward_params)
   ok = valid & (quality > params.threshold) & scene.mask[slot] & (tilt <= params.max_tilt)
-  return image, ok & _visible(uv, center[2], slot, mask, None, params) & ~hit_object & ~hit_bin
+  return image, ok & _visible(uv, center[2], slot, mask, None, params)
 
 
-def _suction_candidate(grasp, quality, valid, slot, scene, bin_, camera, mask, depth, params, gripper, reward_params):
+def _suction_candidate(grasp, quality, valid, slot, scene, camera, mask, depth, params):
+  """Image grasp of one set grasp and whether it passes every test but the collision test."""
   center, approach = _to_camera(scene.poses[slot], camera, grasp.center, grasp.approach)
   angle, approach_angle = angles_from_approach(approach)
   uv = _pixel(camera, center)
   image = ImageSuctionGrasp(center=uv, angle=angle, depth=center[2], approach_angle=approach_angle)
-  hit_object, hit_bin = suction_collisions(suction_grasp_3d(camera, image), scene, bin_, gripper, reward_params)
   ok = valid & (quality > params.threshold) & scene.mask[slot] & (approach_angle <= params.max_approach_angle)
-  return image, ok & _visible(uv, center[2], slot, mask, depth, params) & ~hit_object & ~hit_bin
+  return image, ok & _visible(uv, center[2], slot, mask, depth, params)
 
 
 def _over_slots(candidate, sets_pk: GraspSet, *args):
@@ -357,10 +359,23 @@ def _over_slots(candidate, sets_pk: GraspSet, *args):
   return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), out)
 
 
+def _collision_free(images, passed: jax.Array, collides, key: jax.Array | None, max_checked: int) -> jax.Array:
+  """(C,) bool: ``passed`` and collision-free. With a ``key``, only ``max_checked`` of the passed grasps, drawn
+  uniformly without replacement (Gumbel top-k), are tested (the others come out False): picking uniformly among
+  the collision-free ones of a uniform subset picks uniformly among all collision-free grasps."""
+  if key is None or max_checked >= passed.shape[0]:
+    return passed & ~jax.vmap(collides)(images)
+  scores = jnp.where(passed, jax.random.gumbel(key, passed.shape), -jnp.inf)
+  top, idx = jax.lax.top_k(scores, max_checked)
+  free = jnp.isfinite(top) & ~jax.vmap(collides)(jax.tree.map(lambda a: a[idx], images))
+  return jnp.zeros_like(passed).at[idx].set(free)
+
+
 def parallel_jaw_supervisor_candidates(
     sets_pk: GraspSet, scene: HeapScene, bin_: Bin, camera: Camera, mask: jax.Array,
     params: SupervisorParams = SupervisorParams(), gripper: ParallelJawGripper = ParallelJawGripper(),
-    reward_params: RewardParams = RewardParams()) -> tuple[ImageParallelJawGrasp, jax.Array]:
+    reward_params: RewardParams = RewardParams(), key: jax.Array | None = None
+) -> tuple[ImageParallelJawGrasp, jax.Array]:
   """The parallel-jaw set grasps of one heap as image grasps of one camera, and which the supervisor may pick.
 
   Candidate (p, k) at index p K + k: set grasp k of slot p moved by ``scene.poses[p]`` into the camera frame;
@@ -379,18 +394,23 @@ def parallel_jaw_supervisor_candidates(
     params: supervisor settings.
     gripper: the parallel-jaw gripper (collision geometry comes from ``reward_params.geometry``).
     reward_params: collision geometry and tolerance, shared with the heap reward.
+    key: with a PRNG key, the collision test runs on ``params.max_checked`` grasps drawn uniformly among
+      those passing the other tests (the rest are not eligible); None tests all P K.
 
   Returns:
     (`ImageParallelJawGrasp` with leading axis P K, eligible (P K,) bool).
   """
-  return _over_slots(_jaw_candidate, sets_pk, scene, bin_, camera, mask, params, gripper, reward_params)
+  images, passed = _over_slots(_jaw_candidate, sets_pk, scene, camera, mask, params)
+  collides = lambda g: jnp.any(jnp.stack(parallel_jaw_collisions(parallel_jaw_grasp_3d(camera, g), scene, bin_,
+                                                                 gripper, reward_params)))
+  return images, _collision_free(images, passed, collides, key, params.max_checked)
 
 
 def suction_supervisor_candidates(
     sets_pk: GraspSet, scene: HeapScene, bin_: Bin, camera: Camera, mask: jax.Array,
     params: SupervisorParams = SupervisorParams(), gripper: SuctionGripper = SuctionGripper(),
-    reward_params: RewardParams = RewardParams(),
-    depth: jax.Array | None = None) -> tuple[ImageSuctionGrasp, jax.Array]:
+    reward_params: RewardParams = RewardParams(), depth: jax.Array | None = None,
+    key: jax.Array | None = None) -> tuple[ImageSuctionGrasp, jax.Array]:
   """The suction set grasps of one heap as image grasps of one camera, and which the supervisor may pick.
 
   As `parallel_jaw_supervisor_candidates`, with angle and approach angle from the camera-frame approach
@@ -398,9 +418,12 @@ def suction_supervisor_candidates(
   `suction_collisions` of `suction_grasp_3d` of the image grasp. Visibility: the mask at the centre pixel must
   show the grasp's slot, which rules out targets hidden by other objects; a target hidden by another part of
   its own object passes this test, so pass the rendered ``depth`` (H, W) metres to also require the target's
-  camera-frame z within ``params.depth_tolerance`` of the rendered depth there.
+  camera-frame z within ``params.depth_tolerance`` of the rendered depth there. ``key``: as there.
   """
-  return _over_slots(_suction_candidate, sets_pk, scene, bin_, camera, mask, depth, params, gripper, reward_params)
+  images, passed = _over_slots(_suction_candidate, sets_pk, scene, camera, mask, depth, params)
+  collides = lambda g: jnp.any(jnp.stack(suction_collisions(suction_grasp_3d(camera, g), scene, bin_, gripper,
+                                                            reward_params)))
+  return images, _collision_free(images, passed, collides, key, params.max_checked)
 
 
 def choose_supervisor_grasp(key: jax.Array, eligible: jax.Array) -> tuple[jax.Array, jax.Array]:
