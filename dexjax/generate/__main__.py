@@ -3,7 +3,7 @@
   python -m dexjax.generate --config configs/dexnet4.yaml --out DIR --num-images N
       [--objects SOURCE ...] [--gripper-config FILE] [--camera-config FILE] [--seed S]
       [--shard i/N] [--workers W] [--backend serial|process|ray] [--ray-address ADDR]
-      [--cache-dir DIR] [--no-preview] [--json]
+      [--cache-dir DIR] [--no-preview] [--verify] [--json]
 
 Writes shards, ``manifest.json``, ``config.json`` and ``preview.png`` to DIR, then prints a summary (rows,
 positive rate and failure reasons per gripper, rows per second). Rerun the same command to resume a killed run.
@@ -41,6 +41,7 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--ray-address', help='join this Ray cluster (default: start a local Ray instance)')
   p.add_argument('--cache-dir', help='object and supervisor cache (default $DEXJAX_CACHE or ~/.cache/dexjax/objects)')
   p.add_argument('--no-preview', action='store_true', help='do not write preview.png')
+  p.add_argument('--verify', action='store_true', help='re-read every finished shard before resuming (slow)')
   p.add_argument('--json', action='store_true', help='print the summary as JSON')
   return p
 
@@ -59,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
                                   camera_config=args.camera_config, objects=args.objects, seed=args.seed)
     summary = generate_dataset(config, args.out, args.num_images, assignment=assignment, backend=args.backend,
                                workers=args.workers, ray_address=args.ray_address, cache_dir=args.cache_dir,
-                               progress=not args.json, preview=not args.no_preview)
+                               progress=not args.json, preview=not args.no_preview, verify=args.verify)
   except (ConfigError, ShardError, NoObjectsError, ValueError, ImportError) as e:
     print(f'error: {e}', file=sys.stderr)
     return 2

@@ -57,7 +57,7 @@ def warm_caches(config: GenerateConfig, cache_dir: str | None = None, progress: 
 def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], num_images: int, *,
                      assignment: tuple[int, int] = (0, 1), backend: str = 'serial', workers: int = 1,
                      ray_address: str | None = None, cache_dir: str | None = None, progress: bool = True,
-                     preview: bool = True) -> dict[str, Any]:
+                     preview: bool = True, verify: bool = False) -> dict[str, Any]:
   """Generates (or resumes) a dataset in ``out_dir`` and returns the run's summary (plain JSON).
 
   Args:
@@ -71,6 +71,8 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
     cache_dir: object and supervisor cache (default ``$DEXJAX_CACHE`` or ``~/.cache/dexjax/objects``).
     progress: progress bars on stderr.
     preview: write ``preview.png`` (first image of the first finished shard: grasps coloured by reward, crops).
+    verify: re-read every finished shard before resuming (default: trust manifest entries whose file size
+      matches, see `dexjax.data.pending_shards`).
 
   Returns:
     ``rows``, ``positive_rate`` and per-gripper counts (rows, positives, positive rate, supervisor rows,
@@ -82,7 +84,7 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
   total = num_shards(config, num_images)
   open_manifest(out, fingerprint(config), config.seed, total)
   _write_config(out, config)
-  todo = pending_shards(out, total, fingerprint(config), assignment, seed=config.seed)
+  todo = pending_shards(out, total, fingerprint(config), assignment, seed=config.seed, verify=verify)
   mine = len(range(assignment[0], total, assignment[1]))
   parallel = backend != 'serial' and workers > 1
   if parallel:
