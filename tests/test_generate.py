@@ -10,6 +10,8 @@ import hashlib
 import json
 import zipfile
 
+import yaml
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,6 +20,7 @@ import pytest
 from dexjax.config import ConfigError
 from dexjax.data import (GRIPPER_NAMES, IMAGE_SCHEMA, ROW_SCHEMA, iterate_rows, list_shards, load_manifest, read_shard,
                          shard_path)
+from dexjax.generate.__main__ import main
 from dexjax.generate.config import GenerateConfig, config_from_dict, fingerprint, load_generate_config
 from dexjax.generate.pipeline import ShardGenerator
 from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions
@@ -237,3 +240,107 @@ def test_preview_png_written(run):
   _, out, _, summary = run
   assert summary['preview'] == str(out / 'preview.png')
   assert (out / 'preview.png').stat().st_size > 10_000
+
+
+def test_supervisor_collision_tests_on_a_uniform_subset(run):
+  """With a key, only ``max_checked`` of the grasps passing the cheap tests get the collision test: the eligible
+  ones are then a subset of those found by testing all of them, and the same set when the subset holds all."""
+  from dexjax.generate import supervisor as sup
+  from dexjax.render import Camera, Intrinsics
+  config, out, cache, _ = run
+  shard = read_shard(shard_path(out, 0))
+  images = shard.images
+  with ShardGenerator(config, cache_dir=str(cache)) as generator:
+    ids, mask = images['object_ids'][0], images['object_ids'][0] >= 0
+    scene, _, suction_sets = generator._heap_scene(ids, mask, images['object_poses'][0])  # pylint: disable=protected-access
+  fx, fy, cx, cy = images['camera_intrinsics'][0]
+  camera = Camera(intrinsics=Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=200, height=200),
+                  rotation=jnp.asarray(images['camera_rotation'][0]),
+                  position=jnp.asarray(images['camera_translation'][0]))
+  candidates = jax.jit(sup.suction_supervisor_candidates, static_argnums=2)
+  args = (suction_sets, scene, config.bin, camera, jnp.asarray(images['mask'][0]))
+  few = config.supervisor.replace(max_checked=3)
+  _, every = candidates(*args, few, config.grippers.suction, config.reward, jnp.asarray(images['depth'][0]))
+  every = np.asarray(every)
+  assert every.sum() >= 1
+  for seed in range(3):
+    _, some = candidates(*args, few, config.grippers.suction, config.reward, jnp.asarray(images['depth'][0]),
+                         jax.random.key(seed))
+    some = np.asarray(some)
+    assert some.sum() <= 3 and not np.any(some & ~every)
+  many = config.supervisor.replace(max_checked=suction_sets.valid.size - 1)
+  _, most = candidates(*args, many, config.grippers.suction, config.reward, jnp.asarray(images['depth'][0]),
+                       jax.random.key(0))
+  assert np.array_equal(np.asarray(most), every)
+
+
+def test_cli_writes_the_same_shards_then_resumes_without_rewriting(run, tmp_path, capsys):
+  """The CLI in-process (the compiled labeller of this module's run is reused): same config and seed as the shared
+  run, so the same bytes; a rerun skips every shard; ``--shard 1/2`` owns shard 1 only."""
+  config_path = tmp_path / 'small.yaml'
+  config_path.write_text(yaml.safe_dump(SMALL))
+  _, out_run, cache, _ = run
+  out = tmp_path / 'out'
+  command = ['--config', str(config_path), '--out', str(out), '--num-images', str(NUM_IMAGES), '--cache-dir',
+             str(cache), '--json']
+  assert main(command) == 0
+  summary = json.loads(capsys.readouterr().out)
+  assert summary['shards'] == {'total': 2, 'assigned': 2, 'skipped': 0, 'written': 2, 'failed': {}}
+  for name in GRIPPER_NAMES:
+    stats = summary['grippers'][name]
+    assert stats['rows'] > 0 and 0.0 < stats['positive_rate'] < 1.0
+  digest = lambda p: hashlib.sha256(p.read_bytes()).hexdigest()
+  assert [digest(shard_path(out, i)) for i in (0, 1)] == [digest(shard_path(out_run, i)) for i in (0, 1)]
+  assert (out / 'preview.png').stat().st_size > 10_000 and (out / 'config.json').is_file()
+  assert main(command) == 0
+  summary = json.loads(capsys.readouterr().out)
+  assert summary['shards'] == {'total': 2, 'assigned': 2, 'skipped': 2, 'written': 0, 'failed': {}}
+  assert main([*command, '--shard', '1/2', '--no-preview']) == 0
+  assert json.loads(capsys.readouterr().out)['shards']['assigned'] == 1
+  assert main([c for c in command if c != '--json']) == 0  # the terminal table
+  text = capsys.readouterr().out
+  assert 'positive rate' in text and 'shards: 0 written, 2 already done' in text
+
+
+def _error(capsys, argv: list[str]) -> str:
+  """Runs the CLI in-process on bad input; asserts exit code 2 and returns stderr."""
+  assert main(argv) == 2
+  captured = capsys.readouterr()
+  assert captured.out == ''
+  return captured.err
+
+
+def test_cli_bad_inputs_exit_2_naming_file_and_field(tmp_path, capsys):
+  small_yaml = tmp_path / 'small.yaml'
+  small_yaml.write_text(yaml.safe_dump(SMALL))
+  out, cache = tmp_path / 'out', tmp_path / 'cache'
+  base = ['--out', str(out), '--num-images', '2', '--cache-dir', str(cache), '--json']
+  good = ['--config', str(small_yaml), *base]
+
+  bad = tmp_path / 'bad.yaml'
+  bad.write_text(yaml.safe_dump({**SMALL, 'policy': {**SMALL['policy'], 'epsilonn': 0.1}}))
+  err = _error(capsys, ['--config', str(bad), *base])
+  assert 'bad.yaml' in err and 'policy.epsilonn' in err
+
+  err = _error(capsys, [*good, '--shard', '3/2'])
+  assert '--shard' in err and '3/2' in err
+  err = _error(capsys, [*good, '--num-images', '0'])
+  assert '--num-images' in err and 'got 0' in err
+
+  err = _error(capsys, [*good, '--objects', str(tmp_path / 'missing.obj')])
+  assert 'missing.obj' in err and 'no object could be used' in err and 'not found' in err
+  broken = tmp_path / 'broken'
+  broken.mkdir()
+  (broken / 'empty.obj').write_text('')
+  (broken / 'junk.stl').write_text('not a mesh')
+  err = _error(capsys, [*good, '--objects', str(broken)])
+  assert 'no object could be used' in err
+  assert 'empty.obj' in err and 'empty file' in err and 'junk.stl' in err and 'no triangle faces' in err
+
+  camera = tmp_path / 'cam.json'
+  camera.write_text(json.dumps({'fx': 500.0, 'fy': 510.0, 'cx': 160.0, 'cy': 120.0, 'width': 320, 'height': -1}))
+  err = _error(capsys, [*good, '--camera-config', str(camera)])
+  assert 'cam.json' in err and 'height' in err
+
+  # Bad input writes nothing: the output directory can still be used by a correct run.
+  assert not out.exists() and not shard_path(out, 0).exists()

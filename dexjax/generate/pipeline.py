@@ -76,6 +76,22 @@ def supervisor_sets(config: GenerateConfig, models: Sequence[Any], cache_dir: st
                                cache_dir=os.path.join(cache_dir, 'supervisor') if cache_dir is not None else None)
 
 
+def usable_objects(config: GenerateConfig, cache_dir: str | os.PathLike[str] | None = None, progress: bool = False
+                   ) -> tuple[list[Any], list[Rejection]]:
+  """(prepared objects, rejections) of the run's object sources (`dexjax.objects.prepare_object_set`).
+
+  Raises:
+    NoObjectsError: no object could be used; the message lists each rejected file and its reason.
+  """
+  report = load_object_set(config.objects.sources, scale=config.objects.scale)
+  prepared, rejected = prepare_object_set(report, cache_dir=cache_dir, progress=progress,
+                                          grid_size=config.objects.grid_size)
+  if not prepared:
+    reasons = '; '.join(f'{r.file}: {r.reason}' for r in rejected) or 'no sources'
+    raise NoObjectsError(f'objects.sources {list(config.objects.sources)}: no object could be used ({reasons})')
+  return prepared, rejected
+
+
 def _empty_stats() -> dict[str, Any]:
   return {'heaps': 0, 'diverged_heaps': 0, 'objects_left_bin': 0, 'images': 0,
           'seconds': {stage: 0.0 for stage in _STAGES}}
@@ -93,13 +109,8 @@ class ShardGenerator:
   def __init__(self, config: GenerateConfig, *, cache_dir: str | os.PathLike[str] | None = None,
                progress: bool = False):
     self.config = config
-    report = load_object_set(config.objects.sources, scale=config.objects.scale)
-    prepared, rejected = prepare_object_set(report, cache_dir=cache_dir, progress=progress,
-                                            grid_size=config.objects.grid_size)
+    prepared, rejected = usable_objects(config, cache_dir, progress)
     self.rejected: list[Rejection] = rejected
-    if not prepared:
-      reasons = '; '.join(f'{r.file}: {r.reason}' for r in rejected) or 'no sources'
-      raise NoObjectsError(f'objects.sources {list(config.objects.sources)}: no object could be used ({reasons})')
     self.names = [p.name for p in prepared]
     self.meshes = [p.mesh for p in prepared]
     self.models = [p.model for p in prepared]
@@ -250,4 +261,5 @@ def generate_shard(index: int, config: GenerateConfig, out_dir: str, cache_dir: 
   return stats
 
 
-__all__ = ['NoObjectsError', 'ShardGenerator', 'close_process_generators', 'generate_shard', 'label_params', 'process_generator']
+__all__ = ['NoObjectsError', 'ShardGenerator', 'close_process_generators', 'generate_shard', 'label_params',
+           'process_generator', 'usable_objects']

@@ -19,12 +19,12 @@ from typing import Any
 
 from dexjax.config import as_dict
 from dexjax.data.manifest import open_manifest, pending_shards
-from dexjax.data.shards import read_shard, shard_path
+from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
 from dexjax.generate.config import GenerateConfig, fingerprint
 from dexjax.generate.parallel import run_tasks
-from dexjax.generate.pipeline import close_process_generators, generate_shard, supervisor_sets
+from dexjax.generate.pipeline import (close_process_generators, generate_shard, process_generator,
+                                      supervisor_sets, usable_objects)
 from dexjax.generate.report import RowStats
-from dexjax.objects.sets import load_object_set, prepare_object_set
 
 CONFIG_NAME = 'config.json'
 PREVIEW_NAME = 'preview.png'
@@ -46,10 +46,12 @@ def _write_config(out_dir: Path, config: GenerateConfig) -> None:
 
 def warm_caches(config: GenerateConfig, cache_dir: str | None = None, progress: bool = False) -> int:
   """Builds the object models, collision hulls and supervisor grasp sets into the cache once, before worker
-  processes start (so they load instead of each computing them). Returns the number of usable objects."""
-  report = load_object_set(config.objects.sources, scale=config.objects.scale)
-  prepared, _ = prepare_object_set(report, cache_dir=cache_dir, progress=progress,
-                                   grid_size=config.objects.grid_size)
+  processes start (so they load instead of each computing them). Returns the number of usable objects.
+
+  Raises:
+    NoObjectsError: no object of the run's sources could be used.
+  """
+  prepared, _ = usable_objects(config, cache_dir, progress)
   supervisor_sets(config, [p.model for p in prepared], cache_dir)
   return len(prepared)
 
@@ -79,18 +81,31 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
     failure reasons; `dexjax.generate.RowStats`), ``rows_per_s`` of this invocation, ``seconds`` per stage
     (summed over workers), shard counts (``shards``, ``skipped``, ``written``, ``failed`` with reasons),
     heap counts, and the paths written.
+
+  Raises:
+    NoObjectsError: no object of ``config.objects.sources`` could be used (checked before a new run writes
+      anything; a task's own errors are reported per shard in ``shards.failed`` instead).
+    ValueError: ``num_images < 1``.
+    dexjax.data.ConfigMismatchError: ``out_dir`` holds another run.
   """
   out = Path(out_dir)
   total = num_shards(config, num_images)
+  parallel = backend != 'serial' and workers > 1
+  if parallel:
+    config = dataclasses.replace(config, settle=config.settle.replace(nthread=1))  # one core per worker
+  # The objects are checked (NoObjectsError) before a new run writes anything, so a bad source leaves no manifest
+  # of its config behind; this makes the caches (parallel) or this process's generator (serial, reused by tasks).
+  prepare = (lambda: warm_caches(config, cache_dir, progress)) if parallel else (
+      lambda: process_generator(config, cache_dir))
+  new_run = not (out / MANIFEST_NAME).exists()
+  if new_run:
+    prepare()
   open_manifest(out, fingerprint(config), config.seed, total)
   _write_config(out, config)
   todo = pending_shards(out, total, fingerprint(config), assignment, seed=config.seed, verify=verify)
   mine = len(range(assignment[0], total, assignment[1]))
-  parallel = backend != 'serial' and workers > 1
-  if parallel:
-    config = dataclasses.replace(config, settle=config.settle.replace(nthread=1))  # one core per worker
-  if todo and parallel:
-    warm_caches(config, cache_dir, progress)
+  if todo and not new_run:
+    prepare()
   stats, heap_counts = RowStats(), {'heaps': 0, 'diverged_heaps': 0, 'objects_left_bin': 0, 'images': 0}
   stage_seconds = {'settle': 0.0, 'render': 0.0, 'label': 0.0, 'write': 0.0}
 

@@ -127,11 +127,45 @@ def _supervisor_perturbations(perturbations: robust.Perturbations | None, defaul
   return base.replace(num_samples=params.num_samples)
 
 
-def _robust_set(key, model, grasps, valid, evaluate) -> GraspSet:
-  """Robust probability of every grasp; grasp i draws from ``fold_in(key, i)`` (as `evaluate_grasps`)."""
-  index = jnp.arange(valid.shape[0])
-  prob = jax.lax.map(lambda x: evaluate(jax.random.fold_in(key, x[0]), model, x[1]).probability, (index, grasps))
-  return GraspSet(grasps=grasps, quality=jnp.where(valid, prob, 0.0).astype(jnp.float32), valid=valid)
+def _quality_keys(key: jax.Array, num_grasps: int) -> jax.Array:
+  """(num_grasps,) keys ``fold_in(key, i)``: grasp i's robust-quality key (as `evaluate_grasps`)."""
+  return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, jnp.arange(num_grasps))
+
+
+@jax.jit
+def _sample_jaw_set(key, model, gripper, params):
+  """(grasps, valid, quality keys) of `parallel_jaw_grasp_set`."""
+  k_sample, k_quality = jax.random.split(key)
+  grasps, valid = sample_antipodal_grasps(k_sample, model, params.num_grasps, gripper, params.sampler)
+  grasps = grasps.replace(approach=jax.vmap(perpendicular)(grasps.axis))
+  return grasps, valid, _quality_keys(k_quality, params.num_grasps)
+
+
+@jax.jit
+def _sample_suction_set(key, model, gripper, params):
+  """(grasps, valid, quality keys) of `suction_grasp_set`."""
+  k_sample, k_quality = jax.random.split(key)
+  grasps, valid = sample_suction_grasps(k_sample, model, params.num_grasps, gripper)
+  return grasps, valid, _quality_keys(k_quality, params.num_grasps)
+
+
+# One compiled robust quality per gripper, called grasp by grasp (the former single jit mapped it over the grasps
+# sequentially anyway): sampler plus quality compile in about the time of that jit or less, give the same results
+# bit for bit, and the quality is the same executable as any other ``jax.jit(robust_*_quality)`` called with the
+# same argument structure in the process.
+_jaw_quality = jax.jit(robust.robust_parallel_jaw_quality)
+_suction_quality = jax.jit(robust.robust_suction_quality)
+
+
+def _robust_set(sampled, model, quality, gripper, perturbations, config) -> GraspSet:
+  """The `GraspSet` of sampled (grasps, valid, keys): grasp i's probability is ``quality(keys[i], model, grasp i,
+  gripper, perturbations, config)``, 0 where not valid."""
+  grasps, valid, keys = sampled
+  host = jax.tree.map(np.asarray, grasps)
+  prob = [quality(k, model, jax.tree.map(lambda a, i=i: a[i], host), gripper, perturbations, config).probability
+          for i, k in enumerate(keys)]
+  quality_k = jnp.where(valid, jnp.stack(prob) if prob else jnp.zeros(0), 0.0).astype(jnp.float32)
+  return GraspSet(grasps=grasps, quality=quality_k, valid=valid)
 
 
 def parallel_jaw_grasp_set(key: jax.Array, model: ObjectModel, gripper: ParallelJawGripper = ParallelJawGripper(),
@@ -143,29 +177,20 @@ def parallel_jaw_grasp_set(key: jax.Array, model: ObjectModel, gripper: Parallel
   ``key`` splits into (sampling key, quality key); grasp i's quality is `robust_parallel_jaw_quality` with key
   ``fold_in(quality key, i)`` and ``perturbations`` (default `parallel_jaw_perturbations`) with ``num_samples``
   replaced by ``params.num_samples``. The approach of each grasp is `perpendicular(axis)` (see the module doc).
+
+  Runs eagerly (not under `jax.jit`): a compiled sampler, then the compiled robust quality grasp by grasp.
   """
-  k_sample, k_quality = jax.random.split(key)
-  grasps, valid = sample_antipodal_grasps(k_sample, model, params.num_grasps, gripper, params.sampler)
-  grasps = grasps.replace(approach=jax.vmap(perpendicular)(grasps.axis))
   pert = _supervisor_perturbations(perturbations, robust.parallel_jaw_perturbations, params)
-  evaluate = lambda k, m, g: robust.robust_parallel_jaw_quality(k, m, g, gripper, pert, config)
-  return _robust_set(k_quality, model, grasps, valid, evaluate)
+  return _robust_set(_sample_jaw_set(key, model, gripper, params), model, _jaw_quality, gripper, pert, config)
 
 
 def suction_grasp_set(key: jax.Array, model: ObjectModel, gripper: SuctionGripper = SuctionGripper(),
                       params: SupervisorParams = SupervisorParams(), perturbations: robust.Perturbations | None = None,
                       config: QualityConfig = QualityConfig()) -> GraspSet:
-  """``params.num_grasps`` suction grasps on one object and their robust quality (object frame); keys and
-  perturbations as `parallel_jaw_grasp_set` (default `suction_perturbations`)."""
-  k_sample, k_quality = jax.random.split(key)
-  grasps, valid = sample_suction_grasps(k_sample, model, params.num_grasps, gripper)
+  """``params.num_grasps`` suction grasps on one object and their robust quality (object frame); keys,
+  perturbations and evaluation as `parallel_jaw_grasp_set` (default `suction_perturbations`)."""
   pert = _supervisor_perturbations(perturbations, robust.suction_perturbations, params)
-  evaluate = lambda k, m, g: robust.robust_suction_quality(k, m, g, gripper, pert, config)
-  return _robust_set(k_quality, model, grasps, valid, evaluate)
-
-
-_jaw_set = jax.jit(parallel_jaw_grasp_set)
-_suction_set = jax.jit(suction_grasp_set)
+  return _robust_set(_sample_suction_set(key, model, gripper, params), model, _suction_quality, gripper, pert, config)
 
 
 # --- On-disk cache -------------------------------------------------------------------------------------------
@@ -247,8 +272,8 @@ def _object_sets(model, key_seed, jaw_gripper, suction_gripper, params, jaw_pert
       warnings.warn(f"dexjax supervisor cache: '{path}' is unreadable ({type(e).__name__}: {e}); recomputing",
                     RuntimeWarning, stacklevel=3)
   k_jaw, k_suction = jax.random.split(_object_key(model, key_seed))
-  jaw = jax.tree.map(np.asarray, _jaw_set(k_jaw, model, jaw_gripper, params, jaw_pert, config))
-  suction = jax.tree.map(np.asarray, _suction_set(k_suction, model, suction_gripper, params, suction_pert, config))
+  jaw = jax.tree.map(np.asarray, parallel_jaw_grasp_set(k_jaw, model, jaw_gripper, params, jaw_pert, config))
+  suction = jax.tree.map(np.asarray, suction_grasp_set(k_suction, model, suction_gripper, params, suction_pert, config))
   try:
     atomic_write_npz(path, {'cache_key': np.array(key), **_flatten('jaw', jaw), **_flatten('suction', suction)})
   except OSError as e:
