@@ -120,6 +120,7 @@ class ShardGenerator:
     width, height = image_size(config)
     self.renderer = DepthRenderer(width, height, backend=config.dataset.render_backend, settings=config.render)
     self.fingerprint = fingerprint(config)
+    self.shards_made = 0
 
   def close(self) -> None:
     self.renderer.close()
@@ -179,6 +180,7 @@ class ShardGenerator:
         images.append(image)
         rows.append(image_rows)
     stacked_images, stacked_rows = _stack(images, rows)
+    self.shards_made += 1
     return stacked_images, stacked_rows, stats
 
   def _image(self, j, h, index, ids, mask, poses, render_scene, scene, pj_sets, su_sets, keys, stats):
@@ -250,14 +252,18 @@ def generate_shard(index: int, config: GenerateConfig, out_dir: str, cache_dir: 
   """Makes and writes shard ``index`` of the run in ``out_dir``; returns its stats and row summary fields.
 
   The task a worker runs (picklable with `functools.partial`). The shard is written atomically and recorded in
-  the manifest (`dexjax.data.finish_shard`).
+  the manifest (`dexjax.data.finish_shard`). Besides the counts, the stats hold ``wall_seconds`` of the task,
+  the worker's ``pid`` and ``warm`` (False for a process's first shard, which includes start-up and compiling).
   """
+  start = time.perf_counter()
   generator = process_generator(config, cache_dir)
+  warm = generator.shards_made > 0
   images, rows, stats = generator.generate(index)
   clock = time.perf_counter()
   finish_shard(out_dir, index, images, rows, {'config_fingerprint': generator.fingerprint, 'seed': config.seed})
   stats['seconds']['write'] += time.perf_counter() - clock
   stats['rows'] = {k: rows[k] for k in ('gripper', 'reward', 'robust_probability', 'failure', 'policy')}
+  stats.update(wall_seconds=time.perf_counter() - start, pid=os.getpid(), warm=warm)
   return stats
 
 

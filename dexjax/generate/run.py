@@ -78,7 +78,8 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
 
   Returns:
     ``rows``, ``positive_rate`` and per-gripper counts (rows, positives, positive rate, supervisor rows,
-    failure reasons; `dexjax.generate.RowStats`), ``rows_per_s`` of this invocation, ``seconds`` per stage
+    failure reasons; `dexjax.generate.RowStats`), ``rows_per_s`` of this invocation, ``warm_rows_per_s`` (the
+    workers' rates after their first shard, summed; None when no worker made two), ``seconds`` per stage
     (summed over workers), shard counts (``shards``, ``skipped``, ``written``, ``failed`` with reasons),
     heap counts, and the paths written.
 
@@ -109,9 +110,15 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
   stats, heap_counts = RowStats(), {'heaps': 0, 'diverged_heaps': 0, 'objects_left_bin': 0, 'images': 0}
   stage_seconds = {'settle': 0.0, 'render': 0.0, 'label': 0.0, 'write': 0.0}
 
+  workers_seen: dict[int, list[float]] = {}  # pid -> [warm rows, warm seconds]
+
   def on_result(index: int, result: dict[str, Any]) -> None:
     del index
     stats.add(result['rows'])
+    if result.get('warm'):
+      entry = workers_seen.setdefault(result['pid'], [0.0, 0.0])
+      entry[0] += len(result['rows']['gripper'])
+      entry[1] += result['wall_seconds']
     for k in heap_counts:
       heap_counts[k] += result[k]
     for k, v in result['seconds'].items():
@@ -128,6 +135,8 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
   summary = stats.to_dict(seconds)
   summary.update(heap_counts)
   summary['stage_seconds'] = stage_seconds
+  # Steady rate: each worker's rows over its busy time, without its first shard (start-up, compiling), summed.
+  summary['warm_rows_per_s'] = sum(r / t for r, t in workers_seen.values() if t > 0) or None
   summary['shards'] = {'total': total, 'assigned': mine, 'skipped': mine - len(todo),
                        'written': len(result.results), 'failed': {str(k): v for k, v in result.failures.items()}}
   summary['out_dir'] = os.fspath(out)
