@@ -1,0 +1,13 @@
+"""GQ-CNN models in Flax: the Dex-Net 4.0 grasp-quality network (`GQCNN`, spec section 2.2), a small variant for
+CPU runs, its fully convolutional application to whole images (`score_map`, spec section 2.3), and input
+normalisation fitted on the training split (`fit_normalization`)."""
+
+from dexjax.models.fully_convolutional import output_stride, score_map, score_map_shape
+from dexjax.models.normalization import Normalization, fit_normalization
+from dexjax.models.gqcnn import (GQCNN, PARALLEL_JAW_POSE_DIM, SUCTION_POSE_DIM, GQCNNConfig, ImageStream, init_gqcnn,
+                                 num_parameters, success_probability)
+
+__all__ = [
+  'GQCNN', 'GQCNNConfig', 'ImageStream', 'Normalization', 'PARALLEL_JAW_POSE_DIM', 'SUCTION_POSE_DIM',
+  'fit_normalization', 'init_gqcnn', 'num_parameters', 'output_stride', 'score_map', 'score_map_shape', 'success_probability',
+]

@@ -1,0 +1,163 @@
+"""The Dex-Net 4.0 GQ-CNN (spec section 2.2) in Flax, configurable down to a small variant for CPU runs.
+
+Image stream: convolutions (VALID padding, ReLU), 2 x 2 max-pools after the configured layers, a dense layer
+(fc3). Pose stream: one dense layer (pc1). Merge: ReLU(fc3 W1 + pc1 W2 + b) (fc4), then two logits [fail,
+success] (fc5). `GQCNNConfig()` is the released GQCNN-4.0-PJ / -SUCTION architecture (631,410 / 631,426
+parameters for pose dimensions 1 / 2); `GQCNNConfig.small()` a 32 x 32 variant for quick CPU training.
+
+Initialisation (spec section 2.5): every kernel and bias is drawn from a normal truncated at 2 sigma with
+sigma = sqrt(2 / fan_in) (the merge layer's two kernels and bias share fan_in = image + pose features), except
+the final bias, which is zero.
+
+Inputs are normalised crops (B, S, S, 1) and normalised poses (B, pose_dim); see `dexjax.models.Normalization`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+from flax import linen as nn
+
+PARALLEL_JAW_POSE_DIM = 1  # gripper depth
+SUCTION_POSE_DIM = 2       # gripper depth, approach angle
+
+
+@dataclasses.dataclass(frozen=True)
+class GQCNNConfig:
+  """Architecture of a GQ-CNN (defaults: Dex-Net 4.0, spec section 2.2).
+
+  Attributes:
+    crop_size: input crop side S, pixels.
+    conv_filters: filters per convolution.
+    conv_kernels: kernel side per convolution (VALID padding, stride 1).
+    pool_after: indices of the convolutions followed by a 2 x 2, stride 2 max-pool.
+    fc_size: image-stream dense layer (fc3) width.
+    pose_size: pose-stream dense layer (pc1) width.
+    merge_size: merge layer (fc4) width.
+    pose_dim: pose input size: 1 (parallel jaw: depth) or 2 (suction: depth, approach angle).
+    dropout: dropout rate after fc3 and fc4 in training (Dex-Net 4.0: 0).
+  """
+
+  crop_size: int = 96
+  conv_filters: tuple[int, ...] = (16, 16, 16, 16)
+  conv_kernels: tuple[int, ...] = (9, 5, 5, 5)
+  pool_after: tuple[int, ...] = (1, 3)
+  fc_size: int = 128
+  pose_size: int = 16
+  merge_size: int = 128
+  pose_dim: int = PARALLEL_JAW_POSE_DIM
+  dropout: float = 0.0
+
+  @classmethod
+  def small(cls, pose_dim: int = PARALLEL_JAW_POSE_DIM) -> GQCNNConfig:
+    """A ~30k-parameter variant on 32 x 32 crops (Dex-Net 2.0's crop size) for quick CPU training."""
+    return cls(crop_size=32, conv_filters=(16, 16, 16), conv_kernels=(5, 3, 3), pool_after=(0, 2), fc_size=64,
+               pose_size=16, merge_size=64, pose_dim=pose_dim)
+
+  def feature_size(self) -> int:
+    """Side of the image stream's last feature map (17 for Dex-Net 4.0); raises ValueError if it vanishes."""
+    size = self.crop_size
+    for index, kernel in enumerate(self.conv_kernels):
+      size = size - kernel + 1
+      if index in self.pool_after:
+        size = math.ceil(size / 2)
+      if size < 1:
+        raise ValueError(f'GQCNNConfig: crop_size {self.crop_size} is too small for conv_kernels '
+                         f'{self.conv_kernels} (feature map vanishes after convolution {index})')
+    return size
+
+  def validate(self) -> GQCNNConfig:
+    """Checks the fields; raises ValueError naming the field and the expected value."""
+    if len(self.conv_filters) != len(self.conv_kernels) or not self.conv_kernels:
+      raise ValueError(f'GQCNNConfig.conv_filters / conv_kernels: expected equal, non-zero lengths, got '
+                       f'{self.conv_filters} and {self.conv_kernels}')
+    if any(i < 0 or i >= len(self.conv_kernels) for i in self.pool_after):
+      raise ValueError(f'GQCNNConfig.pool_after: expected indices of convolutions in [0, {len(self.conv_kernels)}), '
+                       f'got {self.pool_after}')
+    if self.pose_dim < 1:
+      raise ValueError(f'GQCNNConfig.pose_dim: expected 1 (parallel jaw) or 2 (suction), got {self.pose_dim}')
+    if not 0.0 <= self.dropout < 1.0:
+      raise ValueError(f'GQCNNConfig.dropout: expected a rate in [0, 1), got {self.dropout}')
+    self.feature_size()
+    return self
+
+
+def _he_truncated(fan_in: int):
+  """Initializer: normal truncated at +-2 sigma, sigma = sqrt(2 / fan_in) (spec section 2.5)."""
+  sigma = math.sqrt(2.0 / fan_in)
+  return lambda key, shape, dtype=jnp.float32: sigma * jax.random.truncated_normal(key, -2.0, 2.0, shape, dtype)
+
+
+def _conv(features: int, kernel: int, in_channels: int, name: str) -> nn.Conv:
+  init = _he_truncated(kernel * kernel * in_channels)
+  return nn.Conv(features, (kernel, kernel), padding='VALID', kernel_init=init, bias_init=init, name=name)
+
+
+def _dense(features: int, fan_in: int, name: str, use_bias: bool = True, zero_bias: bool = False) -> nn.Dense:
+  init = _he_truncated(fan_in)
+  return nn.Dense(features, use_bias=use_bias, kernel_init=init,
+                  bias_init=nn.initializers.zeros if zero_bias else init, name=name)
+
+
+def _pool(x: jax.Array) -> jax.Array:
+  return nn.max_pool(x, (2, 2), strides=(2, 2), padding='SAME')
+
+
+class ImageStream(nn.Module):
+  """Convolutions and pools of a GQ-CNN: (B, S, S, 1) -> (B, F, F, C) features."""
+
+  config: GQCNNConfig
+
+  @nn.compact
+  def __call__(self, image: jax.Array) -> jax.Array:
+    x, channels = image, image.shape[-1]
+    for index, (filters, kernel) in enumerate(zip(self.config.conv_filters, self.config.conv_kernels)):
+      x = nn.relu(_conv(filters, kernel, channels, f'conv{index}')(x))
+      if index in self.config.pool_after:
+        x = _pool(x)
+      channels = filters
+    return x
+
+
+class GQCNN(nn.Module):
+  """The GQ-CNN: logits (B, 2) [fail, success] of normalised crops (B, S, S, 1) and poses (B, pose_dim)."""
+
+  config: GQCNNConfig = GQCNNConfig()
+
+  @nn.compact
+  def __call__(self, image: jax.Array, pose: jax.Array, train: bool = False) -> jax.Array:
+    c = self.config
+    features = ImageStream(c, name='image_stream')(image)
+    flat = features.reshape(features.shape[0], -1)
+    h = nn.relu(_dense(c.fc_size, flat.shape[-1], 'fc3')(flat))
+    h = nn.Dropout(c.dropout, deterministic=not train)(h)
+    q = nn.relu(_dense(c.pose_size, pose.shape[-1], 'pc1')(pose))
+    fan_in = c.fc_size + c.pose_size
+    merged = (_dense(c.merge_size, fan_in, 'fc4_image', use_bias=False)(h)
+              + _dense(c.merge_size, fan_in, 'fc4_pose')(q))
+    m = nn.Dropout(c.dropout, deterministic=not train)(nn.relu(merged))
+    return _dense(2, c.merge_size, 'fc5', zero_bias=True)(m)
+
+
+def init_gqcnn(key: jax.Array, config: GQCNNConfig = GQCNNConfig()):
+  """Parameters of a freshly initialised `GQCNN` for ``config`` (a pytree of float32 arrays)."""
+  config.validate()
+  image = jnp.zeros((1, config.crop_size, config.crop_size, 1), jnp.float32)
+  return GQCNN(config).init(key, image, jnp.zeros((1, config.pose_dim), jnp.float32))['params']
+
+
+def success_probability(logits: jax.Array) -> jax.Array:
+  """p(success) (...,) = softmax(logits)[..., 1] of logits (..., 2)."""
+  return jax.nn.softmax(logits, axis=-1)[..., 1]
+
+
+def num_parameters(params) -> int:
+  """Total number of scalars in a parameter pytree."""
+  return sum(int(x.size) for x in jax.tree.leaves(params))
+
+
+__all__ = ['GQCNN', 'GQCNNConfig', 'ImageStream', 'PARALLEL_JAW_POSE_DIM', 'SUCTION_POSE_DIM', 'init_gqcnn',
+           'num_parameters', 'success_probability']
