@@ -98,3 +98,69 @@ def test_metrics_match_brute_force_definitions():
   assert perfect['average_precision'] == 1.0 and perfect['balanced_accuracy'] == 1.0
   empty = classification_metrics(np.array([0.2, 0.3]), np.array([0, 0]))
   assert empty['average_precision'] is None and empty['precision'] is None and empty['recall'] is None
+
+
+def _numpy_transform(crop, rotate, flip_lr, flip_ud):
+  """Reference: explicit pixel loops of the reflections about the grasp pixel (S/2, S/2); outside is 0."""
+  s = crop.shape[0]
+
+  def reflect(img, rows, cols):
+    out = np.zeros_like(img)
+    for r in range(s):
+      for c in range(s):
+        sr, sc = (s - r if rows else r), (s - c if cols else c)
+        if 0 <= sr < s and 0 <= sc < s:
+          out[r, c] = img[sr, sc]
+    return out
+
+  if rotate:
+    crop = reflect(crop, True, True)
+  if flip_lr:
+    crop = reflect(crop, False, True)
+  if flip_ud:
+    crop = reflect(crop, True, False)
+  return crop
+
+
+def test_symmetrize_matches_reflections_about_the_grasp_pixel_and_negates_suction_angles():
+  from dexjax.train.data import symmetrize
+  s = 8
+  crop = np.arange(1, s * s + 1, dtype=np.float32).reshape(s, s, 1)
+  pose = jnp.array([0.7, 0.3], jnp.float32)
+  sym = jax.jit(symmetrize, static_argnums=3)
+  seen = set()
+  for seed in range(100):
+    key = jax.random.key(seed)
+    out, out_pose = sym(key, jnp.asarray(crop), pose, True)
+    flips = tuple(bool(x) for x in np.asarray(jax.random.bernoulli(key, 0.5, (3,))))
+    seen.add(flips)
+    np.testing.assert_array_equal(np.asarray(out), _numpy_transform(crop, *flips))
+    assert out[s // 2, s // 2, 0] == crop[s // 2, s // 2, 0]  # the grasp pixel stays put
+    rotate, _, flip_ud = flips
+    assert float(out_pose[1]) == pytest.approx(-0.3 if rotate != flip_ud else 0.3)
+    assert float(out_pose[0]) == pytest.approx(0.7)
+  assert len(seen) == 8
+  _, jaw_pose = sym(jax.random.key(0), jnp.asarray(crop), pose[:1], False)
+  assert float(jaw_pose[0]) == pytest.approx(0.7)
+
+
+def test_gripper_examples_crop_at_the_grasp_with_pose_and_label():
+  from dexjax.train.data import gripper_examples
+  rng = np.random.default_rng(0)
+  depth = rng.uniform(0.6, 0.8, (3, 40, 40)).astype(np.float32)
+  depth[1, 5, 5] = np.nan
+  batch = {'depth': depth, 'gripper': np.array([0, 1, 1], np.int8),
+           'center': np.array([[20, 20], [12, 30], [25, 9]], np.float32), 'angle': np.array([0.3, 0.0, 1.2], np.float32),
+           'grasp_depth': np.array([0.7, 0.71, 0.72], np.float32),
+           'approach_angle': np.array([0.0, 0.2, 0.4], np.float32), 'reward': np.array([1, 0, 1], np.int8),
+           'robust_probability': np.array([0.9, 0.8, 0.6], np.float32)}
+  jaw = gripper_examples(batch, 'parallel_jaw', crop_size=16)
+  cup = gripper_examples(batch, 'suction', crop_size=16)
+  assert jaw['crops'].shape == (1, 16, 16, 1) and cup['crops'].shape == (2, 16, 16, 1)
+  assert jaw['crops'][0, 8, 8, 0] == depth[0, 20, 20]
+  assert cup['crops'][0, 8, 8, 0] == depth[1, 30, 12] and cup['crops'][1, 8, 8, 0] == depth[2, 9, 25]
+  assert np.all(np.isfinite(cup['crops']))
+  np.testing.assert_allclose(cup['poses'], [[0.71, 0.2], [0.72, 0.4]])
+  assert jaw['poses'].shape == (1, 1) and list(cup['labels']) == [0, 1] and list(jaw['labels']) == [1]
+  with pytest.raises(ValueError, match='gripper'):
+    gripper_examples(batch, 'claw')
