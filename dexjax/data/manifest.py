@@ -122,18 +122,22 @@ def _manifest_lock(out_dir: Path):
     yield  # closing the file releases the lock
 
 
-def record_shard(out_dir: str | os.PathLike, index: int) -> ShardRecord:
-  """Adds the finished shard ``index`` (counts and sha256 of its file) to the manifest, atomically."""
+def record_shard(out_dir: str | os.PathLike, index: int, meta: Mapping[str, Any] | None = None) -> ShardRecord:
+  """Adds the finished shard ``index`` (counts and sha256 of its file) to the manifest, atomically.
+
+  ``meta``: the shard's meta as `write_shard` returned it (the file is then hashed, not read and validated
+  again); None reads and validates the file.
+  """
   out_dir = Path(out_dir)
   path = shard_path(out_dir, index)
-  shard = read_shard(path)
-  record = ShardRecord(index, path.name, shard.meta["num_images"], shard.meta["num_rows"], file_sha256(path),
+  meta = read_shard(path).meta if meta is None else meta
+  record = ShardRecord(index, path.name, meta["num_images"], meta["num_rows"], file_sha256(path),
                        path.stat().st_size)
   with _manifest_lock(out_dir):
     manifest = load_manifest(out_dir)
     if manifest is None:
       raise ShardError(f"manifest '{out_dir / MANIFEST_NAME}': file not found; call open_manifest first")
-    _check_run(f"shard '{path}'", (shard.meta["config_fingerprint"], shard.meta["seed"]),
+    _check_run(f"shard '{path}'", (meta["config_fingerprint"], meta["seed"]),
                (manifest.config_fingerprint, manifest.seed))
     _save_manifest(out_dir, dataclasses.replace(manifest, shards={**manifest.shards, index: record}))
   return record
@@ -142,8 +146,8 @@ def record_shard(out_dir: str | os.PathLike, index: int) -> ShardRecord:
 def finish_shard(out_dir: str | os.PathLike, index: int, images: Mapping[str, np.ndarray],
                  rows: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> ShardRecord:
   """`write_shard` to `shard_path` (out_dir, index), then `record_shard`; ``meta`` needs the fingerprint and seed."""
-  write_shard(shard_path(out_dir, index), images, rows, dict(meta, index=index))
-  return record_shard(out_dir, index)
+  stored = write_shard(shard_path(out_dir, index), images, rows, dict(meta, index=index))
+  return record_shard(out_dir, index, stored)
 
 
 def _shard_status(out_dir: Path, index: int, fingerprint: str, seed: int | None) -> bool:

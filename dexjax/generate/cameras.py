@@ -26,7 +26,7 @@ import yaml
 from dexjax.config import ConfigError, load_yaml, override
 from dexjax.render.camera import Camera, Intrinsics
 from dexjax.render.distribution import CameraDistribution, sample_camera
-from dexjax.render.intrinsics_io import load_camera, load_intrinsics
+from dexjax.render.intrinsics_io import load_camera_or_intrinsics
 
 _DISTRIBUTION_FIELDS = frozenset(f.name for f in dataclasses.fields(CameraDistribution))
 
@@ -41,15 +41,6 @@ def _is_distribution(path: str) -> bool:
   except (OSError, yaml.YAMLError):
     return False  # load_intrinsics reports the problem
   return isinstance(data, dict) and bool(data) and set(data) <= _DISTRIBUTION_FIELDS
-
-
-def _has_pose(path: str) -> bool:
-  try:
-    with open(path, encoding='utf-8') as f:
-      text = f.read()
-  except OSError:
-    return False
-  return 'rotation' in text and 'position' in text
 
 
 def apply_camera_file(config, path: str | os.PathLike[str]):
@@ -67,15 +58,11 @@ def apply_camera_file(config, path: str | os.PathLike[str]):
       raise ConfigError(path, 'camera', str(e)) from None
     return dataclasses.replace(config, camera=dist, camera_intrinsics=(), camera_pose=())
   try:
-    if _has_pose(path):
-      camera = load_camera(path)
-      pose = tuple(float(x) for x in np.asarray(camera.rotation).reshape(-1)) + tuple(
-          float(x) for x in np.asarray(camera.position))
-      k = camera.intrinsics
-    else:
-      k, pose = load_intrinsics(path), ()
+    k, camera = load_camera_or_intrinsics(path)
   except (OSError, ValueError) as e:
     raise ConfigError(path, '', str(e)) from None
+  pose = () if camera is None else tuple(float(x) for x in np.asarray(camera.rotation).reshape(-1)) + tuple(
+      float(x) for x in np.asarray(camera.position))
   intrinsics = (float(k.fx), float(k.fy), float(k.cx), float(k.cy), float(k.width), float(k.height))
   return dataclasses.replace(config, camera_intrinsics=intrinsics, camera_pose=pose)
 

@@ -26,7 +26,7 @@ from dexjax.objects.sets import load_object_set, prepare_object_set
 from dexjax.render import gl
 from dexjax.render.camera import Camera
 from dexjax.render.distribution import sample_camera
-from dexjax.render.intrinsics_io import load_camera, load_intrinsics
+from dexjax.render.intrinsics_io import load_camera_or_intrinsics
 from dexjax.render.noise import SensorNoise, apply_sensor_noise
 from dexjax.render.rendering import DepthImage, DepthRenderer, settled_heap_scene
 from dexjax.sim.bodies import heap_objects
@@ -58,9 +58,8 @@ def _camera(path: str | None, sampled: Camera) -> Camera:
   """The camera of ``path`` (with pose), or the sampled pose with the file's intrinsics, or ``sampled``."""
   if path is None:
     return sampled
-  with open(path, encoding='utf-8') as f:
-    has_pose = 'rotation' in f.read()
-  return load_camera(path) if has_pose else sampled.replace(intrinsics=load_intrinsics(path))
+  intrinsics, camera = load_camera_or_intrinsics(path)
+  return camera if camera is not None else sampled.replace(intrinsics=intrinsics)
 
 
 def _heap(args: argparse.Namespace) -> int:

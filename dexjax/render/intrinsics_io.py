@@ -252,3 +252,14 @@ def load_camera(path: str | os.PathLike) -> Camera:
   position = _position(name, _field(name, data, 'position')[1])
   return Camera(intrinsics=intrinsics, rotation=jnp.asarray(rotation, jnp.float32),
                 position=jnp.asarray(position, jnp.float32))
+
+
+def load_camera_or_intrinsics(path: str | os.PathLike) -> tuple[Intrinsics, Camera | None]:
+  """(intrinsics, posed camera or None) of a file: a `save_camera` file (it has ``rotation``) gives both, an
+  intrinsics file (any format `load_intrinsics` reads) only the intrinsics. Errors as those two functions."""
+  data = _read_mapping(path)
+  if 'rotation' in data:
+    camera = load_camera(path)
+    return camera.intrinsics, camera
+  return load_intrinsics(path), None
+
