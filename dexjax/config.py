@@ -94,9 +94,10 @@ def override(params: Any, values: Mapping[str, Any] | None, *, source: str, sect
   fields = {f.name: f for f in dataclasses.fields(params)}
   changes = {}
   for name, value in values.items():
+    where = f"{section}.{name}" if section else str(name)
     if name not in fields:
-      raise ConfigError(source, f"{section}.{name}", f"unknown field; expected one of {', '.join(fields)}")
-    changes[name] = _coerce(getattr(params, name), value, source, f"{section}.{name}", minimum)
+      raise ConfigError(source, where, f"unknown field; expected one of {', '.join(fields)}")
+    changes[name] = _coerce(getattr(params, name), value, source, where, minimum)
   return dataclasses.replace(params, **changes)
 
 

@@ -102,12 +102,19 @@ class _Buffer:
       self.depths[(slot, int(image))] = shard.images["depth"][image].copy()  # a copy frees the shard
     self.rows = new if self.rows is None else {k: np.concatenate([self.rows[k], new[k]]) for k in new}
 
-  def take(self, index: np.ndarray) -> dict[str, np.ndarray]:
-    """Removes the rows ``index`` and returns them as a batch with their depth images gathered."""
+  def take(self, index: np.ndarray, stack_images: bool = True) -> dict[str, np.ndarray]:
+    """Removes the rows ``index`` and returns them as a batch with their depth images gathered (stacked, or
+    as an object array of references)."""
     batch = {k: v[index] for k, v in self.rows.items()}
     self.rows = {k: np.delete(v, index, axis=0) for k, v in self.rows.items()}
     slots = batch.pop("_slot")
-    batch["depth"] = np.stack([self.depths[(int(s), int(i))] for s, i in zip(slots, batch["image_index"])])
+    images = [self.depths[(int(s), int(i))] for s, i in zip(slots, batch["image_index"])]
+    if stack_images:
+      batch["depth"] = np.stack(images)
+    else:
+      batch["depth"] = np.empty(len(images), object)
+      for k, image in enumerate(images):
+        batch["depth"][k] = image
     return batch
 
   def prune(self) -> None:
@@ -118,7 +125,7 @@ class _Buffer:
 
 def iterate_rows(out_dir: str | os.PathLike, split: str = "train", batch_size: int = 64, seed: int = 0,
                  shuffle_buffer: int = 10_000, by: str = "heap", val_fraction: float = 0.1, split_seed: int = 0,
-                 drop_remainder: bool = False) -> Iterator[dict[str, np.ndarray]]:
+                 drop_remainder: bool = False, stack_images: bool = True) -> Iterator[dict[str, np.ndarray]]:
   """Streams one epoch of shuffled batches of the rows of ``split``.
 
   Args:
@@ -129,6 +136,8 @@ def iterate_rows(out_dir: str | os.PathLike, split: str = "train", batch_size: i
     shuffle_buffer: rows kept for mixing; larger mixes rows of more shards.
     by, val_fraction, split_seed: the split, see `split_images`.
     drop_remainder: drop the last, partial batch.
+    stack_images: ``depth`` as one (B, H, W) array (a copy of each row's image); False: a (B,) object array of
+      references to the images (no copy; rows of one image share it), for consumers that read small windows.
 
   Yields:
     Dicts of NumPy arrays with leading axis B: every `ROW_SCHEMA` field, ``depth`` (B, H, W) float32 (the
@@ -147,16 +156,16 @@ def iterate_rows(out_dir: str | os.PathLike, split: str = "train", batch_size: i
     buffer.add(shard, slot, _select_rows(shard, _SPLITS[split], by, val_fraction, split_seed))
     del shard
     while len(buffer) >= shuffle_buffer + batch_size:
-      yield buffer.take(rng.choice(len(buffer), batch_size, replace=False))
+      yield buffer.take(rng.choice(len(buffer), batch_size, replace=False), stack_images)
     buffer.prune()
-  yield from _drain(buffer, rng, batch_size, drop_remainder)
+  yield from _drain(buffer, rng, batch_size, drop_remainder, stack_images)
 
 
-def _drain(buffer: _Buffer, rng: np.random.Generator, batch_size: int,
-           drop_remainder: bool) -> Iterator[dict[str, np.ndarray]]:
+def _drain(buffer: _Buffer, rng: np.random.Generator, batch_size: int, drop_remainder: bool,
+           stack_images: bool) -> Iterator[dict[str, np.ndarray]]:
   """Yields the rest of the buffer in random order."""
   while len(buffer) >= batch_size or (len(buffer) and not drop_remainder):
-    yield buffer.take(rng.choice(len(buffer), min(batch_size, len(buffer)), replace=False))
+    yield buffer.take(rng.choice(len(buffer), min(batch_size, len(buffer)), replace=False), stack_images)
 
 
 __all__ = ["TRAIN", "VAL", "iterate_rows", "list_shards", "split_images"]

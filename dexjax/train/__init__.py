@@ -1,11 +1,29 @@
-"""GQ-CNN training (issue 6, in progress): examples and augmentation from dataset rows (`data`), the jitted train
-step with Dex-Net 4.0's optimiser (`step`) and validation metrics (`metrics`)."""
+"""GQ-CNN training (``python -m dexjax.train``): examples and augmentation from dataset rows (`data`), reproducible
+fixed-size batches and training-split statistics (`batches`), the jitted step with Dex-Net 4.0's optimiser
+(`step`), the per-gripper loop with validation, checkpoints and the best model (`loop`, `checkpoint`), data
+parallelism (`distributed`), metrics (`metrics`, `evaluate`, `report`), configs (`config`) and whole runs (`run`).
+"""
 
+from dexjax.train.batches import GripperStats, dataset_stats, eval_batches, train_batches
+from dexjax.train.checkpoint import Checkpointer
+from dexjax.train.config import (BEST_METRICS, CLASS_BALANCE, CheckpointConfig, LoopConfig, QuickstartData,
+                                 SplitConfig, TrainConfig, config_to_dict, load_train_config, train_config_from_dict)
 from dexjax.train.data import gripper_examples, pose_vectors, symmetrize
+from dexjax.train.distributed import data_mesh, replicate, shard_batch
+from dexjax.train.evaluate import evaluate_model
+from dexjax.train.loop import Interrupted, final_state_params, sgd_step, train_gripper
 from dexjax.train.metrics import average_precision, classification_metrics
-from dexjax.train.step import (OptimizerConfig, TrainState, create_state, cross_entropy, eval_logits, make_optimizer,
-                               train_step)
+from dexjax.train.report import plot_curves, read_records
+from dexjax.train.run import quickstart_dataset, train_run
+from dexjax.train.step import (OptimizerConfig, TrainState, create_state, cross_entropy, eval_logits,
+                               learning_rate_schedule, make_optimizer, train_step)
 
-__all__ = ['OptimizerConfig', 'TrainState', 'average_precision', 'classification_metrics', 'create_state',
-           'cross_entropy', 'eval_logits', 'gripper_examples', 'make_optimizer', 'pose_vectors', 'symmetrize',
-           'train_step']
+__all__ = [
+  'BEST_METRICS', 'CLASS_BALANCE', 'CheckpointConfig', 'Checkpointer', 'GripperStats', 'Interrupted', 'LoopConfig',
+  'OptimizerConfig', 'QuickstartData', 'SplitConfig', 'TrainConfig', 'TrainState', 'average_precision',
+  'classification_metrics', 'config_to_dict', 'create_state', 'cross_entropy', 'data_mesh', 'dataset_stats',
+  'eval_batches', 'eval_logits', 'evaluate_model', 'final_state_params', 'gripper_examples', 'learning_rate_schedule',
+  'load_train_config', 'make_optimizer', 'plot_curves', 'pose_vectors', 'quickstart_dataset', 'read_records',
+  'replicate', 'sgd_step', 'shard_batch', 'symmetrize', 'train_batches', 'train_config_from_dict', 'train_gripper',
+  'train_run', 'train_step',
+]

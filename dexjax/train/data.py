@@ -13,6 +13,7 @@ centre; for suction the rotation and the up-down flip negate the approach angle.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import jax
@@ -22,7 +23,47 @@ import numpy as np
 from dexjax.data.shards import GRIPPER_NAMES
 from dexjax.sampling.crops import grasp_crop
 
-_crops = jax.jit(jax.vmap(grasp_crop, in_axes=(0, 0, 0, None)), static_argnums=3)
+
+def _patch_size(window: int) -> int:
+  """Side of a square patch holding every pixel a rotated ``window`` crop (bilinear included) can read."""
+  return int(math.ceil(window * math.sqrt(2.0))) + 4
+
+
+def grasp_patches(depth, centers: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+  """Axis-aligned patches around grasp centres, so crops are made without copying whole images.
+
+  Args:
+    depth: the rows' depth images: (M, H, W) float32, or an (M,) object array of (H, W) images (references to
+      shared images, as `dexjax.data.iterate_rows` gives with ``stack_images=False``).
+    centers: (M, 2) grasp centres (u, v), pixels.
+    window: crop window side, pixels.
+
+  Returns:
+    (M, P, P) float32 patches (0 outside the image, as `grasp_crop`'s border) and (M, 2) centres in patch pixels;
+    ``grasp_crop(patch, local_center, ...)`` equals ``grasp_crop(image, center, ...)``.
+  """
+  size = _patch_size(window)
+  centers = np.asarray(centers, np.float64)
+  origin = np.floor(centers).astype(np.int64) - size // 2  # (u0, v0) of each patch
+  out = np.zeros((len(centers), size, size), np.float32)
+  for k, (u0, v0) in enumerate(origin):
+    image = depth[k]
+    h, w = image.shape
+    r0, r1, c0, c1 = max(v0, 0), min(v0 + size, h), max(u0, 0), min(u0 + size, w)
+    if r1 > r0 and c1 > c0:
+      out[k, r0 - v0:r1 - v0, c0 - u0:c1 - u0] = image[r0:r1, c0:c1]
+  return out, (centers - origin).astype(np.float32)
+
+
+def _crop_batch(patches: jax.Array, centers: jax.Array, angle: jax.Array, window: int, size: int) -> jax.Array:
+  """(M, size, size) crops of the ``window``-pixel grasp windows in patches (M, P, P) (NaN depth read as 0):
+  nearest pixels at equal sizes (gqcnn), bilinear resampling otherwise (e.g. 96 -> 32)."""
+  scale, interpolation = (1.0, 'nearest') if window == size else (size / window, 'bilinear')
+  crop = lambda d, c, a: grasp_crop(jnp.nan_to_num(d, nan=0.0), c, a, window, scale, interpolation)
+  return jax.vmap(crop)(patches, centers, angle)
+
+
+_crops = jax.jit(_crop_batch, static_argnums=(3, 4))
 
 
 def _check_gripper(gripper: str) -> None:
@@ -37,17 +78,23 @@ def pose_vectors(rows: Mapping[str, np.ndarray], gripper: str) -> np.ndarray:
   return np.stack(columns, axis=-1).astype(np.float32)
 
 
-def gripper_examples(batch: Mapping[str, np.ndarray], gripper: str, crop_size: int = 96) -> dict[str, np.ndarray]:
-  """The examples of ``gripper`` in a loader batch: ``crops`` (M, S, S, 1) metres (NaN depth becomes 0, as the
-  crop's border), ``poses`` (M, pose_dim), ``labels`` (M,) int32, ``robust_probability`` (M,)."""
+def gripper_examples(batch: Mapping[str, np.ndarray], gripper: str, crop_size: int = 96,
+                     crop_window: int | None = None) -> dict[str, np.ndarray]:
+  """The examples of ``gripper`` in a loader batch (``depth``: per-row images, stacked or an object array, see
+  `grasp_patches`): ``crops`` (M, S, S, 1) metres (NaN depth becomes 0, as the
+  crop's border), ``poses`` (M, pose_dim), ``labels`` (M,) int32, ``robust_probability`` (M,).
+
+  ``crop_window`` (default ``crop_size``) is the side of the window read around the grasp, in image pixels; it is
+  resampled to ``crop_size`` (S) pixels (Dex-Net 2.0's 96 -> 32 downsampling)."""
   _check_gripper(gripper)
   sel = np.asarray(batch['gripper']) == GRIPPER_NAMES.index(gripper)
   rows = {k: np.asarray(v)[sel] for k, v in batch.items()}
   if not sel.any():
     return {'crops': np.zeros((0, crop_size, crop_size, 1), np.float32), 'poses': pose_vectors(rows, gripper),
             'labels': np.zeros(0, np.int32), 'robust_probability': np.zeros(0, np.float32)}
-  depth = np.nan_to_num(rows['depth'], nan=0.0)
-  crops = np.asarray(_crops(jnp.asarray(depth), jnp.asarray(rows['center']), jnp.asarray(rows['angle']), crop_size))
+  window = crop_size if crop_window is None else crop_window
+  patches, centers = grasp_patches(rows['depth'], rows['center'], window)
+  crops = np.asarray(_crops(patches, centers, np.asarray(rows['angle'], np.float32), window, crop_size))
   return {'crops': crops[..., None], 'poses': pose_vectors(rows, gripper),
           'labels': (rows['reward'] == 1).astype(np.int32),
           'robust_probability': rows['robust_probability'].astype(np.float32)}
@@ -75,4 +122,4 @@ def symmetrize(key: jax.Array, crop: jax.Array, pose: jax.Array, suction: bool) 
   return crop, pose
 
 
-__all__ = ['gripper_examples', 'pose_vectors', 'symmetrize']
+__all__ = ['grasp_patches', 'gripper_examples', 'pose_vectors', 'symmetrize']

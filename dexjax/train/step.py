@@ -37,13 +37,18 @@ class OptimizerConfig:
   weight_decay: float = 5e-4
 
 
+def learning_rate_schedule(config: OptimizerConfig, steps_per_epoch: int) -> optax.Schedule:
+  """Step -> learning rate: ``learning_rate * decay_rate ** floor(step / (decay_epochs * steps_per_epoch))``."""
+  transition = max(1, round(config.decay_epochs * steps_per_epoch))
+  return optax.exponential_decay(config.learning_rate, transition_steps=transition, decay_rate=config.decay_rate,
+                                 staircase=True)
+
+
 def make_optimizer(config: OptimizerConfig, steps_per_epoch: int) -> optax.GradientTransformation:
   """``chain(add_decayed_weights, sgd(staircase exponential decay, momentum))`` (spec section 3.2)."""
-  transition = max(1, round(config.decay_epochs * steps_per_epoch))
-  schedule = optax.exponential_decay(config.learning_rate, transition_steps=transition,
-                                     decay_rate=config.decay_rate, staircase=True)
   return optax.chain(optax.add_decayed_weights(config.weight_decay),
-                     optax.sgd(schedule, momentum=config.momentum, nesterov=False))
+                     optax.sgd(learning_rate_schedule(config, steps_per_epoch), momentum=config.momentum,
+                               nesterov=False))
 
 
 class TrainState(train_state.TrainState):
@@ -55,18 +60,22 @@ def create_state(key: jax.Array, model_config: GQCNNConfig, optimizer: optax.Gra
   return TrainState.create(apply_fn=GQCNN(model_config).apply, params=init_gqcnn(key, model_config), tx=optimizer)
 
 
-def cross_entropy(logits: jax.Array, labels: jax.Array) -> jax.Array:
-  """() mean softmax cross-entropy of logits (B, 2) and integer labels (B,)."""
-  return optax.softmax_cross_entropy_with_integer_labels(logits, labels).mean()
+def cross_entropy(logits: jax.Array, labels: jax.Array, weights: jax.Array | None = None) -> jax.Array:
+  """() softmax cross-entropy of logits (B, 2) and integer labels (B,): the mean, or the ``weights`` (B,)
+  weighted mean sum(w l) / sum(w) (class balancing; zero weights mask padding)."""
+  losses = optax.softmax_cross_entropy_with_integer_labels(logits, labels)
+  if weights is None:
+    return losses.mean()
+  return jnp.sum(weights * losses) / jnp.maximum(jnp.sum(weights), 1e-12)
 
 
 def train_step(state: TrainState, batch: dict[str, jax.Array], key: jax.Array) -> tuple[TrainState, dict]:
-  """One SGD step on ``batch``; returns the new state and ``loss`` (cross-entropy before the step) and
-  ``accuracy`` on the batch."""
+  """One SGD step on ``batch`` (optional ``weights`` (B,): a weighted loss); returns the new state, ``loss``
+  (cross-entropy before the step) and ``accuracy`` on the batch."""
 
   def loss_fn(params):
     logits = state.apply_fn({'params': params}, batch['crops'], batch['poses'], train=True, rngs={'dropout': key})
-    return cross_entropy(logits, batch['labels']), logits
+    return cross_entropy(logits, batch['labels'], batch.get('weights')), logits
 
   (loss, logits), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
   accuracy = jnp.mean(jnp.argmax(logits, -1) == batch['labels'])
@@ -78,5 +87,5 @@ def eval_logits(state: TrainState, batch: dict[str, jax.Array]) -> jax.Array:
   return state.apply_fn({'params': state.params}, batch['crops'], batch['poses'], train=False)
 
 
-__all__ = ['OptimizerConfig', 'TrainState', 'create_state', 'cross_entropy', 'eval_logits', 'make_optimizer',
-           'train_step']
+__all__ = ['OptimizerConfig', 'TrainState', 'create_state', 'cross_entropy', 'eval_logits', 'learning_rate_schedule',
+           'make_optimizer', 'train_step']

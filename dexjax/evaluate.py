@@ -1,0 +1,79 @@
+"""Score trained GQ-CNNs on a generated dataset and print one JSON object.
+
+  python -m dexjax.evaluate --checkpoint CKPT --data DIR [--split all|train|val] [--gripper G] [--batch-size B]
+
+CKPT is a training run directory (every gripper trained in it), ``RUN/<gripper>`` or a saved model directory.
+The data may come from other objects than the training set. ``--split all`` (the default) scores every row;
+``train`` / ``val`` use the run's split rule (from ``RUN/config.yaml`` when present, else the default). Prints
+``{"checkpoint", "data", "split", "grippers": {gripper: {accuracy, balanced_accuracy, precision, recall,
+average_precision, loss, examples, positives, ...}}}``. Exit code 0, or 2 for bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+from pathlib import Path
+
+
+def _parser() -> argparse.ArgumentParser:
+  p = argparse.ArgumentParser(prog='python -m dexjax.evaluate', description=__doc__.split('\n\n')[0])
+  p.add_argument('--checkpoint', required=True, help='run directory, RUN/<gripper>, or a saved model directory')
+  p.add_argument('--data', required=True, help='dataset directory (python -m dexjax.generate)')
+  p.add_argument('--split', choices=('all', 'train', 'val'), default='all', help='rows to score (default all)')
+  p.add_argument('--gripper', choices=('parallel_jaw', 'suction'), help='only this gripper (from a run directory)')
+  p.add_argument('--batch-size', type=int, default=256, help='crops per forward pass (default 256)')
+  p.add_argument('--no-progress', action='store_true', help='no progress bar')
+  return p
+
+
+def _run_config(checkpoint: Path):
+  """The training run's config (its split rule), if ``checkpoint`` is a run or lies inside one."""
+  from dexjax.train.config import TrainConfig, load_train_config  # pylint: disable=g-import-not-at-top
+  from dexjax.train.run import CONFIG_FILE  # pylint: disable=g-import-not-at-top
+  for folder in (checkpoint, *checkpoint.parents[:3]):
+    if (folder / CONFIG_FILE).exists():
+      return load_train_config(folder / CONFIG_FILE)
+  return TrainConfig()
+
+
+def main(argv: list[str] | None = None) -> int:
+  args = _parser().parse_args(argv)
+  from dexjax.config import ConfigError  # pylint: disable=g-import-not-at-top (slow imports after parsing)
+  from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top
+  from dexjax.data.shards import GRIPPER_NAMES, ShardError  # pylint: disable=g-import-not-at-top
+  from dexjax.models.saved import load  # pylint: disable=g-import-not-at-top
+  from dexjax.train.evaluate import evaluate_model  # pylint: disable=g-import-not-at-top
+  checkpoint = Path(args.checkpoint).absolute()
+  try:
+    if args.batch_size < 1:
+      raise ValueError(f'--batch-size: expected an integer >= 1, got {args.batch_size}')
+    if not list_shards(args.data):
+      raise FileNotFoundError(f'{args.data}: no dataset shards (shard-*.npz)')
+    config = _run_config(checkpoint)
+    config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, eval_batch_size=args.batch_size))
+    run_grippers = [g for g in GRIPPER_NAMES if (checkpoint / g).is_dir()]
+    if run_grippers:
+      models = [load(checkpoint, g) for g in run_grippers if args.gripper in (None, g)]
+    else:
+      models = [load(checkpoint, args.gripper)]
+    if not models:
+      raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {run_grippers})')
+    results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress)
+               for m in models}
+  except (ConfigError, ShardError, ValueError, FileNotFoundError) as e:
+    print(f'error: {e}', file=sys.stderr)
+    return 2
+  except OSError as e:
+    print(f'error: {e.filename or ""}: {e.strerror or e}', file=sys.stderr)
+    return 2
+  print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': os.fspath(Path(args.data).absolute()),
+                    'split': args.split, 'grippers': results}, indent=1))
+  return 0
+
+
+if __name__ == '__main__':
+  sys.exit(main())

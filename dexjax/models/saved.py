@@ -1,0 +1,140 @@
+"""Trained GQ-CNNs on disk (orbax) and as callable quality functions.
+
+A saved model is an orbax checkpoint directory (written atomically: orbax writes a temporary directory and
+renames it) holding two items: ``params`` (the network parameters and the input `Normalization`) and ``model``
+(JSON: format, gripper, architecture, crop window, and free-form ``info`` such as the epoch and validation
+metrics). `dexjax.train` keeps the best model of each gripper in ``OUT/<gripper>/best``.
+
+`load` returns a `GraspQualityModel`: call it on raw crops (metres) and raw poses to get p(success); it applies
+the stored normalisation itself, so it is the whole quality function Q(y, u) of the policy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+from flax import struct
+
+from dexjax.models.gqcnn import GQCNN, GQCNNConfig, init_gqcnn, success_probability
+from dexjax.models.normalization import Normalization
+
+FORMAT = 'dexjax-gqcnn/1'
+BEST_DIR = 'best'
+
+
+@struct.dataclass
+class GraspQualityModel:
+  """A trained GQ-CNN with its input normalisation: p(success) of grasp crops.
+
+  Attributes:
+    params: network parameters.
+    normalization: input statistics of the training split.
+    config: architecture (static).
+    gripper: ``'parallel_jaw'`` or ``'suction'`` (static).
+    crop_window: side of the image window a crop is read from, pixels (static; ``config.crop_size`` pixels
+      after resampling, see `dexjax.train.gripper_examples`).
+  """
+
+  params: Any
+  normalization: Normalization
+  config: GQCNNConfig = struct.field(pytree_node=False)
+  gripper: str = struct.field(pytree_node=False)
+  crop_window: int = struct.field(pytree_node=False)
+
+  def logits(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
+    """Logits (B, 2) of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim)."""
+    crops, poses = self.normalization.apply(jnp.asarray(crops, jnp.float32), jnp.asarray(poses, jnp.float32))
+    return GQCNN(self.config).apply({'params': self.params}, crops, poses, train=False)
+
+  def __call__(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
+    """p(success) (B,) of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim)."""
+    return success_probability(self.logits(crops, poses))
+
+
+@jax.jit
+def predict(model: GraspQualityModel, crops: jax.Array, poses: jax.Array) -> jax.Array:
+  """Jitted ``model(crops, poses)``: p(success) (B,); compiles once per model architecture and batch shape."""
+  return model(crops, poses)
+
+
+def _options(keep: int) -> ocp.CheckpointManagerOptions:
+  return ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, enable_async_checkpointing=False)
+
+
+def save_model(directory: str | os.PathLike, step: int, model: GraspQualityModel,
+               info: dict[str, Any] | None = None) -> Path:
+  """Saves ``model`` as checkpoint ``step`` of ``directory`` (older steps there are removed after the new one is
+  complete, so a reader always finds a whole model). Returns the step's directory."""
+  directory = Path(directory).absolute()
+  meta = {'format': FORMAT, 'gripper': model.gripper, 'crop_window': model.crop_window,
+          'config': dataclasses.asdict(model.config), 'info': info or {}}
+  with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
+    manager.save(step, args=ocp.args.Composite(
+        params=ocp.args.StandardSave({'params': model.params, 'normalization': model.normalization}),
+        model=ocp.args.JsonSave(meta)), force=True)
+    manager.wait_until_finished()
+  return directory / str(step)
+
+
+def _config_from_json(data: dict[str, Any]) -> GQCNNConfig:
+  fields = {f.name for f in dataclasses.fields(GQCNNConfig)}
+  return GQCNNConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in fields})
+
+
+def _model_directory(path: Path, gripper: str | None) -> Path:
+  """The orbax directory of a saved model, from a model directory, a gripper directory or a run directory."""
+  candidates = [path, path / BEST_DIR] + ([path / gripper / BEST_DIR] if gripper else [])
+  for candidate in candidates:
+    if candidate.is_dir() and any(p.name.isdigit() and (p / 'model').exists() for p in candidate.iterdir()):
+      return candidate
+  names = sorted(p.name for p in path.iterdir() if (p / BEST_DIR).is_dir()) if path.is_dir() else []
+  hint = (f"; it holds the grippers {names}: pass gripper=" if names and not gripper else '')
+  raise FileNotFoundError(f"{path}: no saved GQ-CNN found (expected a model directory with numbered steps, "
+                          f"'<gripper>/{BEST_DIR}' of a training run, or a run directory and a gripper){hint}")
+
+
+def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityModel:
+  """Loads a saved GQ-CNN as a callable `GraspQualityModel`.
+
+  Args:
+    path: a model directory (``OUT/<gripper>/best``), a gripper directory (``OUT/<gripper>``), or a run directory
+      ``OUT`` together with ``gripper``.
+    gripper: which gripper's model, when ``path`` is a run directory.
+
+  Raises:
+    FileNotFoundError: nothing saved there (the message says what was expected).
+    ValueError: the checkpoint is not a dexjax GQ-CNN, or is of another gripper than ``gripper``.
+  """
+  directory = _model_directory(Path(path).absolute(), gripper)
+  with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
+    step = manager.latest_step()
+    meta = manager.restore(step, args=ocp.args.Composite(model=ocp.args.JsonRestore()))['model']
+    if meta.get('format') != FORMAT:
+      raise ValueError(f"{directory / str(step)}: field 'format': expected {FORMAT!r}, got {meta.get('format')!r}")
+    if gripper is not None and meta['gripper'] != gripper:
+      raise ValueError(f"{directory}: field 'gripper': expected {gripper!r}, got {meta['gripper']!r}")
+    config = _config_from_json(meta['config'])
+    template = {'params': init_gqcnn(jax.random.key(0), config),
+                'normalization': Normalization.identity(config.pose_dim)}
+    template = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), template)
+    restored = manager.restore(step, args=ocp.args.Composite(params=ocp.args.StandardRestore(template)))['params']
+  return GraspQualityModel(params=restored['params'], normalization=restored['normalization'], config=config,
+                           gripper=meta['gripper'], crop_window=int(meta['crop_window']))
+
+
+def model_info(path: str | os.PathLike, gripper: str | None = None) -> dict[str, Any]:
+  """The ``info`` mapping saved with a model (epoch, validation metrics, ...)."""
+  directory = _model_directory(Path(path).absolute(), gripper)
+  with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
+    step = manager.latest_step()
+    return manager.restore(step, args=ocp.args.Composite(model=ocp.args.JsonRestore()))['model']['info']
+
+
+__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'load', 'model_info', 'predict', 'save_model']

@@ -1,0 +1,94 @@
+"""Train GQ-CNNs (the project's main job).
+
+  python -m dexjax.train                      # quick start: built-in dataset (generated once), both grippers
+  python -m dexjax.train --config configs/dexnet4_pj.yaml --data DIR [--out OUT] [--resume]
+      [--grippers parallel_jaw suction] [--epochs N] [--seed S] [--cache-dir DIR] [--no-progress] [--json]
+      [--distributed [--coordinator HOST:PORT --num-processes N --process-id I]]
+
+Writes OUT/metrics.jsonl (one JSON object per epoch and gripper), OUT/curves.png, OUT/<gripper>/best (the best
+model by validation, dexjax.models.load) and OUT/<gripper>/checkpoints (resumable with --resume). OUT defaults
+to runs/<config name>-<date-time>; --resume without --out continues the newest such run.
+Exit code 0 on success, 2 for bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+
+def _parser() -> argparse.ArgumentParser:
+  p = argparse.ArgumentParser(prog='python -m dexjax.train', description=__doc__.split('\n\n')[0])
+  p.add_argument('--config', help='training config (layout: configs/dexnet4_pj.yaml; default: the quick start)')
+  p.add_argument('--data', help='dataset directory from python -m dexjax.generate (default: the built-in quick-start '
+                                'set, generated on first use and cached)')
+  p.add_argument('--out', help='run directory (default runs/<config name>-<date-time>)')
+  p.add_argument('--resume', action='store_true', help='continue the run in --out (default: the newest of this '
+                                                       'config) from its last checkpoint')
+  p.add_argument('--grippers', nargs='+', choices=('parallel_jaw', 'suction'), help='replaces the config\'s grippers')
+  p.add_argument('--epochs', type=int, help='replaces loop.epochs')
+  p.add_argument('--seed', type=int, help='replaces the config\'s seed')
+  p.add_argument('--cache-dir', help='object, supervisor and quick-start dataset cache (default $DEXJAX_CACHE or '
+                                     '~/.cache/dexjax/objects)')
+  p.add_argument('--no-progress', action='store_true', help='no progress bars')
+  p.add_argument('--json', action='store_true', help='print the summary as JSON')
+  p.add_argument('--distributed', action='store_true', help='multi-host: call jax.distributed.initialize first')
+  p.add_argument('--coordinator', help='coordinator HOST:PORT (with --distributed; default: from the cluster)')
+  p.add_argument('--num-processes', type=int, help='number of processes (with --distributed)')
+  p.add_argument('--process-id', type=int, help='this process\'s index (with --distributed)')
+  return p
+
+
+def _out_dir(args, name: str) -> Path:
+  if args.out:
+    return Path(args.out)
+  runs = sorted(Path('runs').glob(f'{name}-*'))
+  if args.resume:
+    if not runs:
+      raise FileNotFoundError(f'runs/{name}-*: no run to resume; pass --out')
+    return runs[-1]
+  return Path('runs') / f'{name}-{time.strftime("%Y%m%d-%H%M%S")}'
+
+
+def main(argv: list[str] | None = None) -> int:
+  args = _parser().parse_args(argv)
+  from dexjax.config import ConfigError  # pylint: disable=g-import-not-at-top (slow imports after parsing)
+  from dexjax.data.shards import ShardError  # pylint: disable=g-import-not-at-top
+  from dexjax.train import distributed  # pylint: disable=g-import-not-at-top
+  from dexjax.train.config import load_train_config  # pylint: disable=g-import-not-at-top
+  from dexjax.train.run import quickstart_dataset, train_run  # pylint: disable=g-import-not-at-top
+  log = (lambda *a, **k: print(*a, file=sys.stderr, **k)) if args.json else print
+  try:
+    if args.distributed:
+      distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+    config = load_train_config(args.config)
+    if args.grippers:
+      config = dataclasses.replace(config, grippers=tuple(dict.fromkeys(args.grippers)))
+    if args.epochs is not None:
+      config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, epochs=args.epochs))
+    if args.seed is not None:
+      config = dataclasses.replace(config, seed=args.seed)
+    config = config.validate('command line')
+    name = Path(args.config).stem if args.config else 'quickstart'
+    out = _out_dir(args, name)
+    data = args.data or quickstart_dataset(config, args.cache_dir, progress=not args.no_progress, log=log)
+    log(f'training into {out}')
+    summary = train_run(config, data, out, resume=args.resume, progress=not args.no_progress, log=log)
+  except (ConfigError, ShardError, ValueError, FileNotFoundError, FileExistsError) as e:
+    print(f'error: {e}', file=sys.stderr)
+    return 2
+  except OSError as e:
+    print(f'error: {e.filename or ""}: {e.strerror or e}', file=sys.stderr)
+    return 2
+  if args.json:
+    print(json.dumps(summary, indent=1))
+  return 0
+
+
+if __name__ == '__main__':
+  sys.exit(main())

@@ -1,0 +1,228 @@
+"""The configuration of a GQ-CNN training run, read from YAML (layout: ``configs/dexnet4_pj.yaml``).
+
+`TrainConfig()` is the embedded quick-start default of ``python -m dexjax.train``: both grippers, the small
+32 x 32 network on 96-pixel windows downsampled 3x (Dex-Net 2.0's input), a dozen epochs, class-balanced loss,
+and a small built-in dataset generated on first use (`QuickstartData`). ``configs/dexnet4_pj.yaml`` and
+``configs/dexnet4_suction.yaml`` are the Dex-Net 4.0 recipe (spec section 3: 96 x 96 crops, 50 epochs, batch 64,
+no class re-weighting). Every field is type-checked; `dexjax.config.ConfigError` names the file and the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any, Mapping
+
+from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override
+from dexjax.data.shards import GRIPPER_NAMES
+from dexjax.models.gqcnn import PARALLEL_JAW_POSE_DIM, SUCTION_POSE_DIM, GQCNNConfig
+from dexjax.train.step import OptimizerConfig
+
+CLASS_BALANCE = ('none', 'weight', 'undersample')
+BEST_METRICS = ('val_balanced_accuracy', 'val_average_precision', 'val_accuracy', 'val_loss')
+_MODEL_TUPLES = ('conv_filters', 'conv_kernels', 'pool_after')
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopConfig:
+  """What one epoch does.
+
+  Attributes:
+    epochs: passes over the training split.
+    batch_size: examples per SGD step (global over devices and hosts; a multiple of the device count).
+    symmetrize: random 180-degree rotation and flips about the grasp pixel (spec section 3.4).
+    class_balance: ``'none'`` (Dex-Net 4.0), ``'weight'`` (positives and negatives weigh half the loss each),
+      ``'undersample'`` (negatives kept with probability positive rate / negative rate, drawn per epoch).
+    normalization_rows: training rows (at most) the input statistics are fitted on.
+    shuffle_buffer: rows mixed by the streaming loader (`dexjax.data.iterate_rows`).
+    eval_batch_size: examples per validation forward pass.
+  """
+
+  epochs: int = 12
+  batch_size: int = 64
+  symmetrize: bool = True
+  class_balance: str = 'weight'
+  normalization_rows: int = 20_000
+  shuffle_buffer: int = 10_000
+  eval_batch_size: int = 256
+
+
+@dataclasses.dataclass(frozen=True)
+class SplitConfig:
+  """Train / validation split (`dexjax.data.split_images`): ``by`` heap or object, ``val_fraction``, ``seed``."""
+
+  by: str = 'heap'
+  val_fraction: float = 0.2
+  seed: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckpointConfig:
+  """Checkpointing: every ``every_steps`` SGD steps and at each epoch's end (the ``keep`` newest are kept), plus
+  the best model by ``best_metric`` on the validation split."""
+
+  every_steps: int = 500
+  keep: int = 2
+  best_metric: str = 'val_balanced_accuracy'
+
+
+@dataclasses.dataclass(frozen=True)
+class QuickstartData:
+  """The dataset ``python -m dexjax.train`` generates (once, then reuses) when no ``--data`` is given.
+
+  Attributes:
+    objects: object sources (`dexjax.objects.load_object_set`).
+    num_images: rendered heap images (about 100 labelled rows each: 50 per gripper).
+    workers: generation processes.
+  """
+
+  objects: tuple[str, ...] = ('procedural:L1/0:10', 'procedural:L2/0:10')
+  num_images: int = 320
+  workers: int = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+  """A training run: one GQ-CNN per gripper in ``grippers``.
+
+  Attributes:
+    seed: initialisation, data order, dropout and augmentation seed.
+    grippers: gripper names (`dexjax.data.GRIPPER_NAMES`) to train, one model each.
+    model: the architecture (``pose_dim`` is set per gripper).
+    crop_window: side of the grasp-centred window read from the depth image, pixels; resampled to
+      ``model.crop_size`` (96 -> 32: 3x downsampling, bilinear; equal sizes: nearest, as gqcnn).
+    optimizer, loop, split, checkpoint: see their classes.
+    quickstart: the built-in dataset used without ``--data``.
+  """
+
+  seed: int = 0
+  grippers: tuple[str, ...] = GRIPPER_NAMES
+  model: GQCNNConfig = GQCNNConfig.small()
+  crop_window: int = 96
+  optimizer: OptimizerConfig = OptimizerConfig()
+  loop: LoopConfig = LoopConfig()
+  split: SplitConfig = SplitConfig()
+  checkpoint: CheckpointConfig = CheckpointConfig()
+  quickstart: QuickstartData = QuickstartData()
+
+  def model_config(self, gripper: str) -> GQCNNConfig:
+    """The architecture of ``gripper``'s network (pose dimension 1 for the parallel jaw, 2 for suction)."""
+    pose_dim = SUCTION_POSE_DIM if gripper == 'suction' else PARALLEL_JAW_POSE_DIM
+    return dataclasses.replace(self.model, pose_dim=pose_dim)
+
+  def validate(self, source: str = '<config>') -> TrainConfig:
+    """Checks cross-field rules; raises `ConfigError` naming the field and the expected value."""
+    if not self.grippers or any(g not in GRIPPER_NAMES for g in self.grippers) or len(set(self.grippers)) < len(
+        self.grippers):
+      raise ConfigError(source, 'grippers', f'expected distinct names from {GRIPPER_NAMES}, got {self.grippers}')
+    try:
+      self.model.validate()
+    except ValueError as e:
+      raise ConfigError(source, 'model', str(e)) from None
+    if self.crop_window < self.model.crop_size:
+      raise ConfigError(source, 'crop_window', f'expected >= model.crop_size ({self.model.crop_size}), got '
+                                               f'{self.crop_window}')
+    checks = [('loop.epochs', self.loop.epochs >= 1, 'an integer >= 1'),
+              ('loop.batch_size', self.loop.batch_size >= 1, 'an integer >= 1'),
+              ('loop.eval_batch_size', self.loop.eval_batch_size >= 1, 'an integer >= 1'),
+              ('loop.normalization_rows', self.loop.normalization_rows >= 1, 'an integer >= 1'),
+              ('loop.class_balance', self.loop.class_balance in CLASS_BALANCE, f'one of {CLASS_BALANCE}'),
+              ('split.by', self.split.by in ('heap', 'object'), "'heap' or 'object'"),
+              ('split.val_fraction', 0.0 < self.split.val_fraction < 1.0, 'a fraction in (0, 1)'),
+              ('checkpoint.every_steps', self.checkpoint.every_steps >= 1, 'an integer >= 1'),
+              ('checkpoint.keep', self.checkpoint.keep >= 1, 'an integer >= 1'),
+              ('checkpoint.best_metric', self.checkpoint.best_metric in BEST_METRICS, f'one of {BEST_METRICS}'),
+              ('optimizer.learning_rate', self.optimizer.learning_rate > 0, 'a number > 0'),
+              ('optimizer.decay_epochs', self.optimizer.decay_epochs > 0, 'a number > 0'),
+              ('quickstart.num_images', self.quickstart.num_images >= 1, 'an integer >= 1')]
+    for field, ok, expected in checks:
+      if not ok:
+        value = _get(self, field)
+        raise ConfigError(source, field, f'expected {expected}, got {value!r}')
+    return self
+
+
+def _get(obj: Any, dotted: str) -> Any:
+  for name in dotted.split('.'):
+    obj = getattr(obj, name)
+  return obj
+
+
+def _model(values: Mapping[str, Any] | None, source: str) -> GQCNNConfig:
+  """The ``model`` section: `GQCNNConfig` fields, with lists of any length for the layer tuples."""
+  model = GQCNNConfig.small()
+  if values is None:
+    return model
+  if not isinstance(values, Mapping):
+    raise ConfigError(source, 'model', f'expected a mapping of field: value, got {values!r}')
+  values, tuples = dict(values), {}
+  for name in _MODEL_TUPLES:
+    if name in values:
+      value = values.pop(name)
+      if not isinstance(value, list) or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+                                                for v in value):
+        raise ConfigError(source, f'model.{name}', f'expected a list of integers >= 0, got {value!r}')
+      tuples[name] = tuple(value)
+  if 'pose_dim' in values:
+    raise ConfigError(source, 'model.pose_dim', 'set per gripper (1 parallel jaw, 2 suction); remove the field')
+  return dataclasses.replace(override(model, values, source=source, section='model', minimum=0), **tuples)
+
+
+def _grippers(value: Any, source: str) -> tuple[str, ...]:
+  if isinstance(value, str):
+    value = [value]
+  if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+    raise ConfigError(source, 'grippers', f'expected a list of names from {GRIPPER_NAMES}, got {value!r}')
+  return tuple(value)
+
+
+_TOP = ('seed', 'grippers', 'model', 'crop_window', 'optimizer', 'loop', 'split', 'checkpoint', 'quickstart')
+
+
+def train_config_from_dict(data: Mapping[str, Any], source: str = '<config>') -> TrainConfig:
+  """A `TrainConfig` from a decoded YAML mapping (unset fields keep the quick-start defaults).
+
+  Raises:
+    ConfigError: an unknown section or field, a value of the wrong type or out of range.
+  """
+  check_sections(data, _TOP, source=source)
+  c = TrainConfig()
+  scalars = override(c, {k: data[k] for k in ('seed', 'crop_window') if k in data}, source=source, section='',
+                     minimum=0)
+  quickstart = dict(data.get('quickstart') or {})
+  objects = quickstart.pop('objects', None)
+  qs = override(c.quickstart, quickstart, source=source, section='quickstart', minimum=1)
+  if objects is not None:
+    if isinstance(objects, str):
+      objects = [objects]
+    if not isinstance(objects, list) or not objects or not all(isinstance(o, str) and o for o in objects):
+      raise ConfigError(source, 'quickstart.objects', f'expected a non-empty list of object sources, got {objects!r}')
+    qs = dataclasses.replace(qs, objects=tuple(objects))
+  config = dataclasses.replace(
+      scalars,
+      grippers=_grippers(data['grippers'], source) if 'grippers' in data else c.grippers,
+      model=_model(data.get('model'), source),
+      optimizer=override(c.optimizer, data.get('optimizer'), source=source, section='optimizer', minimum=0),
+      loop=override(c.loop, data.get('loop'), source=source, section='loop', minimum=0),
+      split=override(c.split, data.get('split'), source=source, section='split', minimum=0),
+      checkpoint=override(c.checkpoint, data.get('checkpoint'), source=source, section='checkpoint', minimum=0),
+      quickstart=qs)
+  return config.validate(source)
+
+
+def load_train_config(path: str | os.PathLike[str] | None = None) -> TrainConfig:
+  """The quick-start defaults, overridden by the YAML file ``path`` if given."""
+  if path is None:
+    return TrainConfig().validate()
+  return train_config_from_dict(load_yaml(path), os.fspath(path))
+
+
+def config_to_dict(config: TrainConfig) -> dict[str, Any]:
+  """Plain-Python view (YAML/JSON ready; the inverse of `train_config_from_dict`)."""
+  data = as_dict(config)
+  data['model'].pop('pose_dim')
+  return data
+
+
+__all__ = ['BEST_METRICS', 'CLASS_BALANCE', 'CheckpointConfig', 'LoopConfig', 'QuickstartData', 'SplitConfig',
+           'TrainConfig', 'config_to_dict', 'load_train_config', 'train_config_from_dict']

@@ -1,0 +1,50 @@
+"""Scores a trained GQ-CNN on a split of any generated dataset: the validation metrics of a run, and
+``python -m dexjax.evaluate``."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any
+
+import jax
+import numpy as np
+import optax
+from tqdm.auto import tqdm
+
+from dexjax.models.saved import GraspQualityModel
+from dexjax.train.batches import eval_batches
+from dexjax.train.config import TrainConfig
+from dexjax.train.metrics import classification_metrics
+
+
+@jax.jit
+def _logits(model: GraspQualityModel, crops: jax.Array, poses: jax.Array) -> jax.Array:
+  return model.logits(crops, poses)
+
+
+def evaluate_model(model: GraspQualityModel, data_dir: str | os.PathLike, config: TrainConfig = TrainConfig(),
+                   split: str = 'val', progress: bool = False) -> dict[str, Any]:
+  """Metrics of ``model`` on the rows of its gripper in ``split`` (``'train'``, ``'val'`` or ``'all'``).
+
+  ``config`` supplies the split rule (``split`` section) and the evaluation batch size; the crop size and window
+  are the model's. Returns `classification_metrics` (threshold 0.5 on p(success)) plus ``loss``, the mean
+  cross-entropy (None without examples).
+  """
+  config = dataclasses.replace(config, model=model.config, crop_window=model.crop_window)
+  scores, labels, losses = [], [], []
+  batches = eval_batches(data_dir, config, model.gripper, split)
+  for batch in tqdm(batches, desc=f'evaluate {model.gripper}', unit='batch', disable=not progress, leave=False):
+    logits = np.asarray(_logits(model, batch['crops'], batch['poses']))
+    mask = batch['mask']
+    scores.append(np.asarray(jax.nn.softmax(logits[mask], -1)[:, 1]))
+    labels.append(batch['labels'][mask])
+    losses.append(np.asarray(optax.softmax_cross_entropy_with_integer_labels(logits[mask], batch['labels'][mask])))
+  scores = np.concatenate(scores) if scores else np.zeros(0)
+  labels = np.concatenate(labels) if labels else np.zeros(0, np.int32)
+  metrics = classification_metrics(scores, labels)
+  metrics['loss'] = float(np.concatenate(losses).mean()) if len(labels) else None
+  return metrics
+
+
+__all__ = ['evaluate_model']

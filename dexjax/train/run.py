@@ -1,0 +1,122 @@
+"""A whole training run (the library side of ``python -m dexjax.train``): the dataset (given, or the built-in
+quick-start set generated once and cached), the training-split statistics, one GQ-CNN per gripper, and the
+run's files (``config.yaml``, ``stats.json``, ``summary.json``, plus those of `dexjax.train.loop`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from dexjax.data.loader import list_shards
+from dexjax.geometry.cache import default_cache_dir
+from dexjax.train.batches import GripperStats, dataset_stats
+from dexjax.train.checkpoint import CHECKPOINT_DIR, normalization_to_json
+from dexjax.train.config import TrainConfig, config_to_dict, train_config_from_dict
+from dexjax.train.distributed import is_main_process
+from dexjax.train.loop import train_gripper
+from dexjax.train.report import format_summary
+
+CONFIG_FILE = 'config.yaml'
+STATS_FILE = 'stats.json'
+SUMMARY_FILE = 'summary.json'
+
+
+def quickstart_dataset(config: TrainConfig, cache_dir: str | os.PathLike | None = None, progress: bool = True,
+                       log=print) -> Path:
+  """The built-in dataset of ``config.quickstart``: generated with Dex-Net 4.0's generation defaults on first
+  use under ``<cache>/datasets/`` and reused (or completed, if a run was interrupted) afterwards."""
+  from dexjax.generate import GenerateConfig, fingerprint, generate_dataset  # pylint: disable=g-import-not-at-top
+  gen = GenerateConfig()
+  gen = dataclasses.replace(gen, objects=dataclasses.replace(gen.objects, sources=config.quickstart.objects))
+  cache = Path(cache_dir) if cache_dir is not None else Path(default_cache_dir())
+  out = cache / 'datasets' / f'quickstart-{fingerprint(gen)[:12]}'
+  images = config.quickstart.num_images
+  shards = -(-images // gen.dataset.images_per_shard)
+  if len(list_shards(out)) >= shards:
+    log(f'dataset: {out} (cached)')
+    return out
+  log(f'dataset: generating {images} heap images of {", ".join(config.quickstart.objects)} into {out} '
+      f'(once; later runs reuse it)')
+  summary = generate_dataset(gen, out, images, backend='process' if config.quickstart.workers > 1 else 'serial',
+                             workers=config.quickstart.workers, cache_dir=os.fspath(cache_dir) if cache_dir else None,
+                             progress=progress, preview=True)
+  failed = summary['shards']['failed']
+  if failed:
+    raise RuntimeError(f'{out}: {len(failed)} shards failed ({next(iter(failed.values())).splitlines()[0]}); '
+                       f'rerun to retry them')
+  log(f'dataset: {summary["rows"]} rows in {summary["seconds"]:.0f} s')
+  return out
+
+
+def _check_resume_config(out: Path, config: TrainConfig) -> None:
+  """A resumed run must keep its config (only ``loop.epochs`` may change)."""
+  path = out / CONFIG_FILE
+  if not path.exists():
+    return
+  with open(path) as f:
+    saved = train_config_from_dict(yaml.safe_load(f), os.fspath(path))
+  if dataclasses.replace(saved, loop=dataclasses.replace(saved.loop, epochs=config.loop.epochs)) != config:
+    raise ValueError(f'{path}: the run was started with another config; resume it with the same --config (only '
+                     f'loop.epochs may change), or train into another --out')
+
+
+def _write_json(path: Path, data: Any) -> None:
+  tmp = path.with_suffix('.tmp')
+  tmp.write_text(json.dumps(data, indent=1) + '\n')
+  os.replace(tmp, path)
+
+
+def _stats_json(stats: dict[str, GripperStats]) -> dict[str, Any]:
+  return {g: {'train_rows': s.train_rows, 'train_positives': s.train_positives,
+              'positive_rate': s.positive_rate, 'normalization': normalization_to_json(s.normalization)}
+          for g, s in stats.items()}
+
+
+def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | os.PathLike, *, resume: bool = False,
+              progress: bool = True, log=print) -> dict[str, Any]:
+  """Trains one GQ-CNN per gripper of ``config`` on ``data_dir`` into ``out_dir``; returns the summary
+  (``grippers``: the best validation record of each, ``seconds``, ``data``, ``out``).
+
+  Raises:
+    FileNotFoundError: ``data_dir`` holds no shards.
+    FileExistsError: ``out_dir`` holds checkpoints and ``resume`` is False.
+    ValueError: a gripper has no training rows; a resumed run's config differs.
+  """
+  out, start = Path(out_dir), time.perf_counter()
+  if not list_shards(data_dir):
+    raise FileNotFoundError(f'{os.fspath(data_dir)}: no dataset shards (shard-*.npz); make one with python -m '
+                            f'dexjax.generate, or leave out --data for the built-in quick-start set')
+  if resume:
+    _check_resume_config(out, config)
+  else:
+    earlier = [g for g in config.grippers if (out / g / CHECKPOINT_DIR).is_dir()]
+    if earlier:
+      raise FileExistsError(f'{out}: holds checkpoints of an earlier run ({", ".join(earlier)}); pass --resume to '
+                            f'continue it, or choose another --out')
+  if is_main_process():
+    out.mkdir(parents=True, exist_ok=True)
+    (out / CONFIG_FILE).write_text(yaml.safe_dump(config_to_dict(config), sort_keys=False))
+  stats = dataset_stats(data_dir, config)
+  if is_main_process():
+    _write_json(out / STATS_FILE, _stats_json(stats))
+  for gripper, s in stats.items():
+    log(f'{gripper}: {s.train_rows} training rows, {100 * s.positive_rate:.1f} % positive')
+  results = {}
+  for gripper in config.grippers:
+    results[gripper] = train_gripper(data_dir, out, config, gripper, stats[gripper], resume=resume,
+                                     progress=progress, log=log)
+  summary = {'grippers': results, 'seconds': time.perf_counter() - start, 'data': os.fspath(data_dir),
+             'out': os.fspath(out)}
+  if is_main_process():
+    _write_json(out / SUMMARY_FILE, summary)
+    log(format_summary(results, out))
+  return summary
+
+
+__all__ = ['CONFIG_FILE', 'STATS_FILE', 'SUMMARY_FILE', 'quickstart_dataset', 'train_run']
