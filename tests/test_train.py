@@ -164,3 +164,31 @@ def test_gripper_examples_crop_at_the_grasp_with_pose_and_label():
   assert jaw['poses'].shape == (1, 1) and list(cup['labels']) == [0, 1] and list(jaw['labels']) == [1]
   with pytest.raises(ValueError, match='gripper'):
     gripper_examples(batch, 'claw')
+
+
+@pytest.mark.parametrize('window, size', [(24, 24), (24, 8)])
+def test_crops_from_grasp_patches_equal_crops_of_the_whole_image(window, size):
+  """Patches cut around the grasps (object arrays of shared images, grasps near and past the border) give the
+  same crops as `grasp_crop` on the whole image, nearest (equal sizes) and bilinear (resampled)."""
+  from dexjax.sampling import grasp_crop
+  from dexjax.train.data import grasp_patches, gripper_examples
+  rng = np.random.default_rng(3)
+  images = [rng.uniform(0.5, 0.9, (30, 41)).astype(np.float32) for _ in range(2)]
+  centers = np.array([[20.3, 14.7], [1.2, 2.0], [40.5, 29.9], [-3.0, 10.0], [10.0, 5.5]], np.float32)
+  angles = rng.uniform(-np.pi, np.pi, 5).astype(np.float32)
+  which = [0, 1, 0, 1, 1]
+  depth = np.empty(5, object)
+  for k, i in enumerate(which):
+    depth[k] = images[i]
+  batch = {'depth': depth, 'gripper': np.zeros(5, np.int8), 'center': centers, 'angle': angles,
+           'grasp_depth': np.full(5, 0.7, np.float32), 'approach_angle': np.zeros(5, np.float32),
+           'reward': np.zeros(5, np.int8), 'robust_probability': np.zeros(5, np.float32)}
+  crops = gripper_examples(batch, 'parallel_jaw', crop_size=size, crop_window=window)['crops'][..., 0]
+  scale, interpolation = (1.0, 'nearest') if window == size else (size / window, 'bilinear')
+  for k, i in enumerate(which):
+    expected = grasp_crop(jnp.asarray(images[i]), jnp.asarray(centers[k]), jnp.asarray(angles[k]), window, scale,
+                          interpolation)
+    np.testing.assert_allclose(crops[k], np.asarray(expected), atol=1e-5)  # float32 centre shift
+  patches, local = grasp_patches(depth, centers, window)
+  assert patches.shape[1] >= window * np.sqrt(2) and np.all(patches[3][:, :2] == 0)  # left of the image: 0
+  np.testing.assert_allclose(local - centers, np.round(local - centers), atol=1e-5)  # integer shifts only

@@ -57,7 +57,8 @@ def _write_dataset(out_dir, num_shards: int = 4, images_per_shard: int = 4, seed
     write_shard(shard_path(out_dir, s), images, table, {'config_fingerprint': 'synthetic', 'seed': seed, 'index': s})
 
 
-CONFIG = TrainConfig(crop_window=32, grippers=('parallel_jaw',), split=dataclasses.replace(TrainConfig().split, val_fraction=0.25),
+CONFIG = TrainConfig(crop_window=32, grippers=('parallel_jaw',),
+                     split=dataclasses.replace(TrainConfig().split, val_fraction=0.25),
                      loop=LoopConfig(epochs=3, batch_size=16, eval_batch_size=64, normalization_rows=500),
                      checkpoint=CheckpointConfig(every_steps=4, keep=2))
 
@@ -184,6 +185,7 @@ def test_configs_and_their_errors(tmp_path):
   assert (recipe.loop.epochs, recipe.loop.batch_size, recipe.loop.class_balance) == (50, 64, 'none')
   assert recipe.optimizer.learning_rate == 0.01 and recipe.model.conv_kernels == (9, 5, 5, 5)
   assert load_train_config('configs/dexnet4_suction.yaml').grippers == ('suction',)
+  assert load_train_config('configs/quickstart.yaml') == TrainConfig() == load_train_config(None)
   with pytest.raises(ConfigError, match="x.yaml: loop.class_balance: expected one of"):
     train_config_from_dict({'loop': {'class_balance': 'often'}}, 'x.yaml')
   with pytest.raises(ConfigError, match='x.yaml: model.conv_kernel: unknown field'):

@@ -177,8 +177,8 @@ def dataset_stats(data_dir: str | os.PathLike, config: TrainConfig) -> dict[str,
         rows = {k: v[sel][:room] for k, v in batch.items()}
         ex = gripper_examples(rows, gripper, config.model.crop_size, config.crop_window)
         poses = ex['poses']
-        if gripper == 'suction' and config.loop.symmetrize:
-          poses = poses * np.where(rng.random(len(poses)) < 0.5, -1.0, 1.0)[:, None] ** np.array([0, 1])
+        if gripper == 'suction' and config.loop.symmetrize:  # the augmentation flips the approach angle's sign
+          poses[:, 1] *= np.where(rng.random(len(poses)) < 0.5, -1.0, 1.0)
         samples[gripper].append((ex['crops'], poses))
         taken[gripper] += len(poses)
   stats = {}

@@ -127,8 +127,8 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
         progress_data['loss_sum'] += float(metrics['loss'])
         progress_data['accuracy_sum'] += float(metrics['accuracy'])
         bar.update(1)
-        bar.set_postfix(loss=f'{progress_data["loss_sum"] / progress_data["batch"]:.3f}',
-                        ex_s=f'{(progress_data["batch"] - first_batch) * config.loop.batch_size / max(bar.format_dict["elapsed"], 1e-9):.0f}')
+        rate = (progress_data['batch'] - first_batch) * config.loop.batch_size / max(bar.format_dict['elapsed'], 1e-9)
+        bar.set_postfix(loss=f'{progress_data["loss_sum"] / progress_data["batch"]:.3f}', ex_s=f'{rate:.0f}')
         if int(state.step) % config.checkpoint.every_steps == 0:
           checkpointer.save(state, progress_data)
       bar.close()

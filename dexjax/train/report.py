@@ -71,8 +71,8 @@ def plot_curves(out_dir: str | os.PathLike) -> Path | None:
         if points:
           style = '--' if key.startswith('train') else '-'
           ax.plot(*zip(*points), style, marker='o', ms=3, label=f'{gripper} {key.split("_")[0]}')
-    if title != 'loss':
-      ax.axhline(0.5 if title == 'balanced accuracy' else 0.0, color='0.7', lw=0.8)
+    if title == 'balanced accuracy':
+      ax.axhline(0.5, color='0.6', lw=0.8, ls=':')  # chance
     ax.set_title(title)
     ax.set_xlabel('epoch')
     ax.grid(alpha=0.3)

@@ -1,0 +1,162 @@
+"""GQ-CNN training and inference throughput on this machine next to its FLOP-count bound; one JSON object.
+
+  python benchmarks/train_throughput.py [--steps 20] [--repeats 5] [--data DIR]
+
+For the Dex-Net 4.0 network (96 x 96 crops, 631,410 parameters) and the quick-start network (32 x 32):
+
+* ``train_examples_per_s``: the jitted training step of `dexjax.train` (per-example symmetry augmentation,
+  normalisation, forward, backward, the Dex-Net 4.0 optax update) on batches of 64 resident crops; median over
+  ``--repeats`` runs of ``--steps`` steps.
+* ``inference_crops_per_s``: jitted p(success) (`dexjax.models.predict`) of batches of 256 crops, median.
+* ``*_flops_per_example``: XLA's cost analysis of the compiled step / forward pass, divided by the batch size;
+  ``analytic_forward_flops``: 2 x multiply-adds of the convolutions and dense layers, counted by hand as a check.
+* ``matmul_gflops``: this machine's measured float32 matmul rate (2048 x 2048, median), the roofline used for
+  ``*_bound`` = matmul_gflops / flops per example, and ``*_fraction_of_bound``.
+
+With ``--data DIR`` (a generated dataset) it also times the input pipeline alone (`dexjax.train.train_batches`:
+shard reading, shuffling, grasp crops) in examples/s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import json
+import math
+import os
+import platform
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dexjax.models import GQCNNConfig, Normalization, init_gqcnn, num_parameters, predict
+from dexjax.models.saved import GraspQualityModel
+from dexjax.train import OptimizerConfig, TrainConfig, create_state, make_optimizer, sgd_step
+
+TRAIN_BATCH, INFER_BATCH = 64, 256
+
+
+def _median_rate(fn, items: int, repeats: int) -> float:
+  """Median items/s over ``repeats`` calls of ``fn`` (each blocks until done)."""
+  rates = []
+  for _ in range(repeats):
+    start = time.perf_counter()
+    fn()
+    rates.append(items / (time.perf_counter() - start))
+  return statistics.median(rates)
+
+
+def matmul_gflops(repeats: int) -> float:
+  """Measured float32 matmul GFLOP/s (2048 x 2048 x 2048)."""
+  n = 2048
+  a = jax.random.normal(jax.random.key(0), (n, n), jnp.float32)
+  f = jax.jit(lambda x: x @ x)
+  f(a).block_until_ready()
+  return _median_rate(lambda: f(a).block_until_ready(), 2 * n**3, repeats) / 1e9
+
+
+def analytic_forward_flops(config: GQCNNConfig) -> int:
+  """2 x multiply-adds of one example's forward pass (convolutions and dense layers; pools and ReLUs ignored)."""
+  size, channels, macs = config.crop_size, 1, 0
+  for index, (filters, kernel) in enumerate(zip(config.conv_filters, config.conv_kernels)):
+    size = size - kernel + 1
+    macs += size * size * kernel * kernel * channels * filters
+    if index in config.pool_after:
+      size = math.ceil(size / 2)
+    channels = filters
+  macs += size * size * channels * config.fc_size + config.pose_dim * config.pose_size
+  macs += (config.fc_size + config.pose_size) * config.merge_size + config.merge_size * 2
+  return 2 * macs
+
+
+def _flops(compiled, batch: int) -> float | None:
+  analysis = compiled.cost_analysis()
+  analysis = analysis[0] if isinstance(analysis, (list, tuple)) else analysis
+  flops = (analysis or {}).get('flops')
+  return float(flops) / batch if flops else None
+
+
+def measure(config: GQCNNConfig, steps: int, repeats: int, gflops: float) -> dict:
+  rng = np.random.default_rng(0)
+  crops = jnp.asarray(rng.normal(0.7, 0.02, (TRAIN_BATCH, config.crop_size, config.crop_size, 1)), jnp.float32)
+  batch = {'crops': crops, 'poses': jnp.asarray(rng.normal(0.7, 0.02, (TRAIN_BATCH, 1)), jnp.float32),
+           'labels': jnp.asarray(rng.integers(0, 2, TRAIN_BATCH), jnp.int32),
+           'weights': jnp.ones(TRAIN_BATCH, jnp.float32)}
+  norm = Normalization(jnp.float32(0.7), jnp.float32(0.02), jnp.float32([0.7]), jnp.float32([0.02]))
+  state = create_state(jax.random.key(0), config, make_optimizer(OptimizerConfig(), 1000))
+  step_flops = _flops(sgd_step.lower(state, batch, norm, jax.random.key(1), augment=True, suction=False).compile(),
+                      TRAIN_BATCH)
+  start = time.perf_counter()
+  state, _ = sgd_step(state, batch, norm, jax.random.key(1), augment=True, suction=False)
+  jax.block_until_ready(state)
+  compile_s = time.perf_counter() - start
+  holder = [state]
+
+  def train():
+    s = holder[0]
+    for i in range(steps):
+      s, _ = sgd_step(s, batch, norm, jax.random.key(i), augment=True, suction=False)
+    jax.block_until_ready(s)
+    holder[0] = s
+
+  train_rate = _median_rate(train, steps * TRAIN_BATCH, repeats)
+  model = GraspQualityModel(params=init_gqcnn(jax.random.key(2), config), normalization=norm, config=config,
+                            gripper='parallel_jaw', crop_window=config.crop_size)
+  icrops = jnp.asarray(rng.normal(0.7, 0.02, (INFER_BATCH, config.crop_size, config.crop_size, 1)), jnp.float32)
+  iposes = jnp.full((INFER_BATCH, 1), 0.7, jnp.float32)
+  forward_flops = _flops(predict.lower(model, icrops, iposes).compile(), INFER_BATCH)
+  predict(model, icrops, iposes).block_until_ready()
+  infer_passes = max(1, steps // 4)
+
+  def infer():
+    for _ in range(infer_passes):
+      out = predict(model, icrops, iposes)
+    out.block_until_ready()
+
+  infer_rate = _median_rate(infer, infer_passes * INFER_BATCH, repeats)
+  bound = lambda flops: gflops * 1e9 / flops if flops else None
+  frac = lambda rate, flops: rate / bound(flops) if flops else None
+  return {'parameters': num_parameters(model.params), 'crop_size': config.crop_size, 'compile_s': compile_s,
+          'train_examples_per_s': train_rate, 'inference_crops_per_s': infer_rate,
+          'train_flops_per_example': step_flops, 'forward_flops_per_example': forward_flops,
+          'analytic_forward_flops': analytic_forward_flops(config),
+          'train_bound_examples_per_s': bound(step_flops), 'inference_bound_crops_per_s': bound(forward_flops),
+          'train_fraction_of_bound': frac(train_rate, step_flops),
+          'inference_fraction_of_bound': frac(infer_rate, forward_flops)}
+
+
+def pipeline_rate(data: str, batches: int) -> dict:
+  """Examples/s of the input pipeline alone (quick-start crops, parallel jaw, first ``batches`` batches)."""
+  from dexjax.train import dataset_stats, train_batches  # pylint: disable=g-import-not-at-top
+  config = dataclasses.replace(TrainConfig(), grippers=('parallel_jaw',))
+  config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, normalization_rows=64))
+  stats = dataset_stats(data, config)['parallel_jaw']
+  start = time.perf_counter()
+  n = sum(len(b['labels']) for b in itertools.islice(train_batches(data, config, 'parallel_jaw', 0, stats), batches))
+  return {'pipeline_examples_per_s': n / (time.perf_counter() - start), 'pipeline_examples': n}
+
+
+def main() -> None:
+  p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+  p.add_argument('--steps', type=int, default=20)
+  p.add_argument('--repeats', type=int, default=5)
+  p.add_argument('--data', help='a generated dataset: also time the input pipeline')
+  p.add_argument('--pipeline-batches', type=int, default=200)
+  args = p.parse_args()
+  gflops = matmul_gflops(args.repeats)
+  result = {'machine': {'cpu_count': os.cpu_count(), 'platform': platform.platform(), 'jax': jax.__version__,
+                        'devices': [str(d) for d in jax.devices()]},
+            'matmul_gflops': gflops, 'train_batch': TRAIN_BATCH, 'inference_batch': INFER_BATCH,
+            'dexnet4': measure(GQCNNConfig(), args.steps, args.repeats, gflops),
+            'quickstart': measure(GQCNNConfig.small(), args.steps, args.repeats, gflops)}
+  if args.data:
+    result['input_pipeline'] = pipeline_rate(args.data, args.pipeline_batches)
+  print(json.dumps(result, indent=1))
+
+
+if __name__ == '__main__':
+  main()
