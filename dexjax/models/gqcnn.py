@@ -53,7 +53,7 @@ class GQCNNConfig:
 
   @classmethod
   def small(cls, pose_dim: int = PARALLEL_JAW_POSE_DIM) -> GQCNNConfig:
-    """A ~30k-parameter variant on 32 x 32 crops (Dex-Net 2.0's crop size) for quick CPU training."""
+    """A ~36k-parameter variant on 32 x 32 crops (Dex-Net 2.0's crop size) for quick CPU training."""
     return cls(crop_size=32, conv_filters=(16, 16, 16), conv_kernels=(5, 3, 3), pool_after=(0, 2), fc_size=64,
                pose_size=16, merge_size=64, pose_dim=pose_dim)
 
