@@ -344,3 +344,31 @@ def test_cli_bad_inputs_exit_2_naming_file_and_field(tmp_path, capsys):
 
   # Bad input writes nothing: the output directory can still be used by a correct run.
   assert not out.exists() and not shard_path(out, 0).exists()
+
+
+def test_generated_shards_train_both_gqcnns_and_score_every_row(run, tmp_path):
+  """The generator's shards feed the training loop as they are (real depth images, both grippers), the saved
+  models score every row, and a corrupt shard stops training with an error naming the file."""
+  import dataclasses
+  from dexjax.data import ShardError
+  from dexjax.models import load
+  from dexjax.train import LoopConfig, TrainConfig, evaluate_model, read_records, train_run
+  _, out, _, _ = run
+  config = TrainConfig(loop=LoopConfig(epochs=1, batch_size=8, eval_batch_size=32, normalization_rows=64))
+  config = dataclasses.replace(config, split=dataclasses.replace(config.split, val_fraction=0.5))
+  summary = train_run(config, out, tmp_path / 'run', progress=False, log=lambda *a: None)
+  assert set(summary['grippers']) == {'parallel_jaw', 'suction'}
+  assert {r['gripper'] for r in read_records(tmp_path / 'run')} == {'parallel_jaw', 'suction'}
+  rows = np.concatenate([read_shard(shard_path(out, i)).rows['gripper'] for i in range(num_shards(run[0],
+                                                                                                  NUM_IMAGES))])
+  for code, gripper in enumerate(('parallel_jaw', 'suction')):
+    metrics = evaluate_model(load(tmp_path / 'run', gripper), out, config, 'all')
+    assert metrics['examples'] == int(np.sum(rows == code))
+    assert 0.0 <= metrics['accuracy'] <= 1.0 and np.isfinite(metrics['loss'])
+  broken = tmp_path / 'broken'
+  broken.mkdir()
+  for i in range(num_shards(run[0], NUM_IMAGES)):
+    shard_path(broken, i).write_bytes(shard_path(out, i).read_bytes())
+  shard_path(broken, 1).write_bytes(shard_path(out, 1).read_bytes()[:1000])
+  with pytest.raises(ShardError, match='shard-000001.npz'):
+    train_run(config, broken, tmp_path / 'run2', progress=False, log=lambda *a: None)
