@@ -223,3 +223,38 @@ def test_data_parallel_over_two_devices_matches_one_device(data, stats, tmp_path
   two = final_state_params(tmp_path / 'two', config, 'parallel_jaw', stats)
   one = final_state_params(tmp_path / 'one', config, 'parallel_jaw', stats)
   jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5), two, one)
+
+
+@pytest.mark.heavy
+def test_train_cli_killed_with_sigkill_resumes_to_the_same_parameters(data, stats, tmp_path):
+  """A real kill (SIGKILL, mid-epoch, at any moment relative to checkpoint writes) and ``--resume``."""
+  import os
+  import signal
+  import subprocess
+  import sys
+  import time
+  config = dataclasses.replace(CONFIG, loop=dataclasses.replace(CONFIG.loop, epochs=8))
+  path = tmp_path / 'config.yaml'
+  path.write_text('crop_window: 32\ngrippers: [parallel_jaw]\nsplit: {val_fraction: 0.25}\n'
+                  'loop: {epochs: 8, batch_size: 16, eval_batch_size: 64, normalization_rows: 500}\n'
+                  'checkpoint: {every_steps: 4, keep: 2}\n')
+  argv = [sys.executable, '-m', 'dexjax.train', '--config', str(path), '--data', str(data), '--out',
+          str(tmp_path / 'killed'), '--no-progress']
+  process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+  target = stats.train_rows // 16 * 2 + 3  # a step inside the third epoch
+  checkpoints = tmp_path / 'killed' / 'parallel_jaw' / 'checkpoints'
+  deadline = time.time() + 300
+  while time.time() < deadline and process.poll() is None:
+    steps = [int(p.name) for p in checkpoints.glob('*') if p.name.isdigit()]  # not orbax's temporary dirs
+    if steps and max(steps) >= target:
+      break
+    time.sleep(0.05)
+  os.kill(process.pid, signal.SIGKILL)
+  process.wait()
+  assert len(read_records(tmp_path / 'killed')) < 8  # killed before the end
+  assert subprocess.run(argv + ['--resume'], stdout=subprocess.DEVNULL, timeout=600).returncode == 0
+  train_gripper(data, tmp_path / 'whole', config, 'parallel_jaw', stats, log=lambda *a: None)
+  killed = final_state_params(tmp_path / 'killed', config, 'parallel_jaw', stats)
+  whole = final_state_params(tmp_path / 'whole', config, 'parallel_jaw', stats)
+  jax.tree.map(np.testing.assert_array_equal, killed, whole)
+  assert [r['epoch'] for r in read_records(tmp_path / 'killed')] == list(range(1, 9))
