@@ -153,6 +153,17 @@ def test_run_interrupted_mid_epoch_resumes_to_the_same_parameters(data, stats, f
   jax.tree.map(np.testing.assert_array_equal, resumed, uninterrupted)
   drop = lambda r: {k: v for k, v in r.items() if k != 'examples_per_s'}
   assert [drop(r) for r in read_records(tmp_path)] == [drop(r) for r in read_records(out_full)]
+  # An epoch's end that is also a periodic step: its checkpoint says the epoch is done, so a resumed run starts
+  # the next epoch (and does not validate the finished one again).
+  every2 = dataclasses.replace(CONFIG, checkpoint=dataclasses.replace(CONFIG.checkpoint, every_steps=2))
+  other, lines = tmp_path / 'every2', []
+  end2 = 2 * steps_per_epoch  # the end of epoch 2, even: also a periodic step
+  with pytest.raises(Interrupted):
+    train_gripper(data, other, every2, 'parallel_jaw', stats, stop_after_steps=end2 + 1, log=lambda *a: None)
+  train_gripper(data, other, every2, 'parallel_jaw', stats, resume=True, log=lines.append)
+  assert f'resumed at step {end2} (epoch 3, batch 0)' in lines[0]
+  jax.tree.map(np.testing.assert_array_equal, final_state_params(other, CONFIG, 'parallel_jaw', stats),
+               uninterrupted)
 
 
 def test_train_and_evaluate_command_lines(data, tmp_path, capsys):

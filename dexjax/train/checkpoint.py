@@ -51,11 +51,14 @@ class Checkpointer:
   def latest_step(self) -> int | None:
     return self._manager.latest_step()
 
-  def save(self, state: TrainState, progress: dict[str, Any]) -> None:
-    """Saves ``state`` (at its step) with the JSON-ready ``progress``; a step already saved is left alone."""
+  def save(self, state: TrainState, progress: dict[str, Any], replace: bool = False) -> None:
+    """Saves ``state`` (at its step) with the JSON-ready ``progress``. A step already saved is left alone, or
+    with ``replace`` rewritten (the end of an epoch that is also a periodic step: its progress moves on)."""
     step = int(state.step)
     if step in self._manager.all_steps():
-      return
+      if not replace:
+        return
+      self._manager.delete(step)
     self._manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
                                                      progress=ocp.args.JsonSave(progress)))
     self._manager.wait_until_finished()

@@ -152,7 +152,7 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
         save_model(gripper_dir / BEST_DIR, int(state.step), model, info=record)  # every process: orbax syncs
         progress_data['best'], progress_data['best_record'] = record[metric], record
       progress_data.update(epoch=epoch + 1, batch=0, loss_sum=0.0, accuracy_sum=0.0)
-      checkpointer.save(state, progress_data)
+      checkpointer.save(state, progress_data, replace=True)
   best = progress_data['best_record']
   if best is None and model is not None:  # no epoch gave a defined metric: keep the last model
     save_model(gripper_dir / BEST_DIR, int(state.step), model, info=record)
