@@ -132,6 +132,13 @@ def test_saved_model_loads_with_identical_predictions_and_metrics(data, full_run
   crops = np.random.default_rng(0).normal(0.8, 0.02, (8, 32, 32, 1)).astype(np.float32)
   poses = np.full((8, 1), 0.77, np.float32)
   np.testing.assert_array_equal(np.asarray(predict(model, crops, poses)), np.asarray(predict(again, crops, poses)))
+  # Its fully convolutional use on a whole image scores the crop at each stride-aligned cell the same way.
+  depth = np.random.default_rng(1).normal(0.8, 0.02, (48, 44)).astype(np.float32)
+  cells = np.asarray(jax.jit(model.score_image)(depth, poses[0]))
+  assert cells.shape == (5, 4)  # (48 - 32) // 4 + 1, (44 - 32) // 4 + 1
+  crops_at = np.stack([depth[4 * i:4 * i + 32, 4 * j:4 * j + 32] for i, j in ((0, 0), (2, 3), (4, 1))])[..., None]
+  np.testing.assert_allclose(np.asarray(predict(model, crops_at, poses[:3])), cells[[0, 2, 4], [0, 3, 1]],
+                             atol=2e-5)
   # The loaded model reproduces the validation metrics recorded when it was saved.
   metrics = evaluate_model(model, data, CONFIG, 'val')
   assert metrics['balanced_accuracy'] == pytest.approx(best['val_balanced_accuracy'])

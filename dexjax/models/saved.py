@@ -22,6 +22,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 from flax import struct
 
+from dexjax.models.fully_convolutional import score_map
 from dexjax.models.gqcnn import GQCNN, GQCNNConfig, init_gqcnn, success_probability
 from dexjax.models.normalization import Normalization
 
@@ -56,6 +57,21 @@ class GraspQualityModel:
   def __call__(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
     """p(success) (B,) of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim)."""
     return success_probability(self.logits(crops, poses))
+
+  def score_image(self, depth: jax.Array, pose: jax.Array) -> jax.Array:
+    """p(success) (H', W') of every stride-aligned, axis-aligned crop of a raw depth image (H, W) metres, with
+    one raw pose (pose_dim,) or one per cell (H', W', pose_dim): `dexjax.models.score_map` with this model's
+    normalisation. Cell (i, j) is the crop centred at (s i + S / 2, s j + S / 2), s = `output_stride`.
+
+    Raises:
+      ValueError: the model reads resampled windows (``crop_window != config.crop_size``); resample the image
+        by crop_size / crop_window first and build the model with equal sizes.
+    """
+    if self.crop_window != self.config.crop_size:
+      raise ValueError(f'score_image: crop_window {self.crop_window} != crop_size {self.config.crop_size}: '
+                       f'resample the depth image by {self.config.crop_size}/{self.crop_window} first')
+    image, pose = self.normalization.apply(jnp.asarray(depth, jnp.float32)[..., None], jnp.asarray(pose, jnp.float32))
+    return score_map(self.params, self.config, image, pose)
 
 
 @jax.jit
