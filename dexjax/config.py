@@ -101,6 +101,16 @@ def override(params: Any, values: Mapping[str, Any] | None, *, source: str, sect
   return dataclasses.replace(params, **changes)
 
 
+def string_list(value: Any, *, source: str, field: str, what: str) -> tuple[str, ...]:
+  """A non-empty list of non-empty strings (a single string counts as a list of one) as a tuple; otherwise
+  `ConfigError` naming ``field`` and ``what`` the strings are (e.g. "object sources")."""
+  if isinstance(value, str):
+    value = [value]
+  if not isinstance(value, (list, tuple)) or not value or not all(isinstance(v, str) and v for v in value):
+    raise ConfigError(source, field, f"expected a non-empty list of {what}, got {value!r}")
+  return tuple(value)
+
+
 def check_sections(data: Mapping[str, Any], allowed: tuple[str, ...], *, source: str, section: str = "") -> None:
   """Raises `ConfigError` if ``data`` has a key outside ``allowed``."""
   for name in data:

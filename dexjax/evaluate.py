@@ -42,7 +42,8 @@ def _run_config(checkpoint: Path):
 
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
-  from dexjax.config import ConfigError  # pylint: disable=g-import-not-at-top (slow imports after parsing)
+  from dexjax.cli import report_bad_input  # pylint: disable=g-import-not-at-top (slow imports after parsing)
+  from dexjax.config import ConfigError  # pylint: disable=g-import-not-at-top
   from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top
   from dexjax.data.shards import GRIPPER_NAMES, ShardError  # pylint: disable=g-import-not-at-top
   from dexjax.models.saved import load  # pylint: disable=g-import-not-at-top
@@ -64,12 +65,8 @@ def main(argv: list[str] | None = None) -> int:
       raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {run_grippers})')
     results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress)
                for m in models}
-  except (ConfigError, ShardError, ValueError, FileNotFoundError) as e:
-    print(f'error: {e}', file=sys.stderr)
-    return 2
-  except OSError as e:
-    print(f'error: {e.filename or ""}: {e.strerror or e}', file=sys.stderr)
-    return 2
+  except (ConfigError, ShardError, ValueError, OSError) as e:
+    return report_bad_input(e)
   print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': os.fspath(Path(args.data).absolute()),
                     'split': args.split, 'grippers': results}, indent=1))
   return 0

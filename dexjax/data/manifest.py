@@ -24,6 +24,7 @@ import numpy as np
 
 from dexjax.data.shards import (FORMAT_VERSION, MANIFEST_NAME, ConfigMismatchError, ShardError, read_shard,
                                 shard_path, write_shard)
+from dexjax.geometry.cache import atomic_write_text
 
 
 def file_sha256(path: str | os.PathLike) -> str:
@@ -77,9 +78,7 @@ def load_manifest(out_dir: str | os.PathLike) -> Manifest | None:
 
 def _save_manifest(out_dir: Path, manifest: Manifest) -> None:
   """Atomically replaces ``out_dir/manifest.json``."""
-  tmp = out_dir / f"{MANIFEST_NAME}.tmp-{os.getpid()}"
-  tmp.write_text(manifest.to_json())
-  os.replace(tmp, out_dir / MANIFEST_NAME)
+  atomic_write_text(out_dir / MANIFEST_NAME, manifest.to_json())
 
 
 def _check_run(where: str, found: tuple, expected: tuple) -> None:

@@ -17,6 +17,7 @@ import json
 import os
 import sys
 
+from dexjax.cli import report_bad_input
 from dexjax.config import ConfigError
 from dexjax.data.manifest import parse_shard_assignment
 from dexjax.data.shards import ShardError
@@ -61,12 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     summary = generate_dataset(config, args.out, args.num_images, assignment=assignment, backend=args.backend,
                                workers=args.workers, ray_address=args.ray_address, cache_dir=args.cache_dir,
                                progress=not args.json, preview=not args.no_preview, verify=args.verify)
-  except (ConfigError, ShardError, NoObjectsError, ValueError, ImportError) as e:
-    print(f'error: {e}', file=sys.stderr)
-    return 2
-  except OSError as e:
-    print(f'error: {e.filename or ""}: {e.strerror or e}', file=sys.stderr)
-    return 2
+  except (ConfigError, ShardError, NoObjectsError, ValueError, ImportError, OSError) as e:
+    return report_bad_input(e)
   if args.json:
     print(json.dumps(summary, indent=1))
   else:

@@ -18,7 +18,7 @@ import dataclasses
 import os
 from typing import Any, Mapping
 
-from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override
+from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override, string_list
 from dexjax.data.shards import config_fingerprint
 from dexjax.generate.policy import PolicyParams
 from dexjax.generate.supervisor import SupervisorParams
@@ -116,11 +116,8 @@ def _objects(values: dict[str, Any] | None, source: str) -> ObjectsConfig:
   sources = values.pop('sources', None)
   objects = override(ObjectsConfig(), values, source=source, section='objects', minimum=0)
   if sources is not None:
-    if isinstance(sources, str):
-      sources = [sources]
-    if not isinstance(sources, list) or not sources or not all(isinstance(s, str) and s for s in sources):
-      raise ConfigError(source, 'objects.sources', f'expected a non-empty list of object sources, got {sources!r}')
-    objects = dataclasses.replace(objects, sources=tuple(sources))
+    sources = string_list(sources, source=source, field='objects.sources', what='object sources')
+    objects = dataclasses.replace(objects, sources=sources)
   if objects.grid_size < 8 or objects.scale <= 0:
     raise ConfigError(source, 'objects', f'expected grid_size >= 8 and scale > 0, got {objects.grid_size}, '
                                          f'{objects.scale}')

@@ -21,6 +21,7 @@ from dexjax.config import as_dict
 from dexjax.data.manifest import open_manifest, pending_shards
 from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
 from dexjax.generate.config import GenerateConfig, fingerprint
+from dexjax.geometry.cache import atomic_write_text
 from dexjax.generate.parallel import run_tasks
 from dexjax.generate.pipeline import (close_process_generators, generate_shard, process_generator,
                                       supervisor_sets, usable_objects)
@@ -39,9 +40,7 @@ def num_shards(config: GenerateConfig, num_images: int) -> int:
 
 def _write_config(out_dir: Path, config: GenerateConfig) -> None:
   data = {'fingerprint': fingerprint(config), 'config': as_dict(config)}
-  tmp = out_dir / f'{CONFIG_NAME}.tmp-{os.getpid()}'
-  tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=str))
-  os.replace(tmp, out_dir / CONFIG_NAME)
+  atomic_write_text(out_dir / CONFIG_NAME, json.dumps(data, indent=1, sort_keys=True, default=str))
 
 
 def warm_caches(config: GenerateConfig, cache_dir: str | None = None, progress: bool = False) -> int:

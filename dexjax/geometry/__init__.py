@@ -6,6 +6,7 @@ from dexjax.geometry.build import sample_surface
 from dexjax.geometry.cache import CACHE_ENV_VAR
 from dexjax.geometry.cache import CACHE_FORMAT_VERSION
 from dexjax.geometry.cache import atomic_write_npz
+from dexjax.geometry.cache import atomic_write_text
 from dexjax.geometry.cache import cache_key
 from dexjax.geometry.cache import content_key
 from dexjax.geometry.cache import cached_object_model

@@ -9,8 +9,8 @@ Files are written atomically (temporary file in the same directory, then `os.rep
 readers never see a partial file. A file that cannot be read or does not match its key is reported with a
 `RuntimeWarning`, rebuilt and replaced. A cache directory that cannot be written only produces a warning.
 
-`content_key` / `mesh_content_key` and `atomic_write_npz` are the generic key and write helpers; other
-caches (e.g. `dexjax.objects.collision`'s collision hulls) reuse them.
+`content_key` / `mesh_content_key`, `atomic_write_npz` and `atomic_write_text` are the generic key and write
+helpers; other caches (e.g. `dexjax.objects.collision`'s collision hulls) and run files reuse them.
 """
 
 from __future__ import annotations
@@ -157,6 +157,25 @@ def _write_atomic(path: str, key: str, model: ObjectModel) -> None:
   atomic_write_npz(path, {'cache_key': np.array(key), **{f: np.asarray(getattr(model, f)) for f in _FIELDS}})
 
 
+def _atomic_write(path: str | os.PathLike[str], suffix: str, write) -> None:
+  """Calls ``write(binary file)`` on a temporary file in ``path``'s directory (created if missing), flushes it
+  to disk and moves it over ``path`` with `os.replace`; on any error the temporary file is removed."""
+  path = os.fspath(path)
+  directory = os.path.dirname(path) or '.'
+  os.makedirs(directory, exist_ok=True)
+  fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix=suffix, dir=directory)
+  try:
+    with os.fdopen(fd, 'wb') as f:
+      write(f)
+      f.flush()
+      os.fsync(f.fileno())
+    os.replace(tmp, path)
+  except BaseException:
+    if os.path.exists(tmp):
+      os.remove(tmp)
+    raise
+
+
 def atomic_write_npz(path: str | os.PathLike[str], arrays: dict[str, np.ndarray]) -> None:
   """Writes ``arrays`` to ``path`` as an uncompressed .npz so that readers never see a partial file.
 
@@ -166,17 +185,14 @@ def atomic_write_npz(path: str | os.PathLike[str], arrays: dict[str, np.ndarray]
   Raises:
     OSError: the directory cannot be created or written.
   """
-  path = os.fspath(path)
-  directory = os.path.dirname(path) or '.'
-  os.makedirs(directory, exist_ok=True)
-  fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix='.npz', dir=directory)
-  try:
-    with os.fdopen(fd, 'wb') as f:
-      np.savez(f, **arrays)
-      f.flush()
-      os.fsync(f.fileno())
-    os.replace(tmp, path)
-  except BaseException:
-    if os.path.exists(tmp):
-      os.remove(tmp)
-    raise
+  _atomic_write(path, '.npz', lambda f: np.savez(f, **arrays))
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
+  """Writes ``text`` (UTF-8) to ``path`` the way `atomic_write_npz` writes arrays: readers see the old file or
+  the whole new one.
+
+  Raises:
+    OSError: the directory cannot be created or written.
+  """
+  _atomic_write(path, '.txt', lambda f: f.write(text.encode('utf-8')))

@@ -116,6 +116,15 @@ def _model_directory(path: Path, gripper: str | None) -> Path:
                           f"'<gripper>/{BEST_DIR}' of a training run, or a run directory and a gripper){hint}")
 
 
+def _read_meta(manager: ocp.CheckpointManager, directory: Path) -> tuple[int, dict[str, Any]]:
+  """(newest step, its ``model`` JSON) of a saved model; ValueError if it is not a dexjax GQ-CNN."""
+  step = manager.latest_step()
+  meta = manager.restore(step, args=ocp.args.Composite(model=ocp.args.JsonRestore()))['model']
+  if meta.get('format') != FORMAT:
+    raise ValueError(f"{directory / str(step)}: field 'format': expected {FORMAT!r}, got {meta.get('format')!r}")
+  return step, meta
+
+
 def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityModel:
   """Loads a saved GQ-CNN as a callable `GraspQualityModel`.
 
@@ -130,10 +139,7 @@ def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityMod
   """
   directory = _model_directory(Path(path).absolute(), gripper)
   with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
-    step = manager.latest_step()
-    meta = manager.restore(step, args=ocp.args.Composite(model=ocp.args.JsonRestore()))['model']
-    if meta.get('format') != FORMAT:
-      raise ValueError(f"{directory / str(step)}: field 'format': expected {FORMAT!r}, got {meta.get('format')!r}")
+    step, meta = _read_meta(manager, directory)
     if gripper is not None and meta['gripper'] != gripper:
       raise ValueError(f"{directory}: field 'gripper': expected {gripper!r}, got {meta['gripper']!r}")
     config = _config_from_json(meta['config'])
@@ -149,8 +155,7 @@ def model_info(path: str | os.PathLike, gripper: str | None = None) -> dict[str,
   """The ``info`` mapping saved with a model (epoch, validation metrics, ...)."""
   directory = _model_directory(Path(path).absolute(), gripper)
   with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
-    step = manager.latest_step()
-    return manager.restore(step, args=ocp.args.Composite(model=ocp.args.JsonRestore()))['model']['info']
+    return _read_meta(manager, directory)[1]['info']
 
 
 __all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'load', 'model_info', 'predict', 'save_model']

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -57,7 +56,8 @@ def _out_dir(args, name: str) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
-  from dexjax.config import ConfigError  # pylint: disable=g-import-not-at-top (slow imports after parsing)
+  from dexjax.cli import report_bad_input  # pylint: disable=g-import-not-at-top (slow imports after parsing)
+  from dexjax.config import ConfigError  # pylint: disable=g-import-not-at-top
   from dexjax.data.shards import ShardError  # pylint: disable=g-import-not-at-top
   from dexjax.train import distributed  # pylint: disable=g-import-not-at-top
   from dexjax.train.config import load_train_config  # pylint: disable=g-import-not-at-top
@@ -79,12 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     data = args.data or quickstart_dataset(config, args.cache_dir, progress=not args.no_progress, log=log)
     log(f'training into {out}')
     summary = train_run(config, data, out, resume=args.resume, progress=not args.no_progress, log=log)
-  except (ConfigError, ShardError, ValueError, FileNotFoundError, FileExistsError) as e:
-    print(f'error: {e}', file=sys.stderr)
-    return 2
-  except OSError as e:
-    print(f'error: {e.filename or ""}: {e.strerror or e}', file=sys.stderr)
-    return 2
+  except (ConfigError, ShardError, ValueError, OSError) as e:
+    return report_bad_input(e)
   if args.json:
     print(json.dumps(summary, indent=1))
   return 0

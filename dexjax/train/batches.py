@@ -65,13 +65,19 @@ class GripperStats:
     return int(round(self.train_positives + negatives * self.keep_negative_probability()))
 
 
+def _split_rows(data_dir: str | os.PathLike, config: TrainConfig, split: str, seed,
+                shuffle_buffer: int) -> Iterator[dict[str, np.ndarray]]:
+  """`iterate_rows` of ``split`` under the run's split rule, images as references (crops read small windows)."""
+  return iterate_rows(data_dir, split, batch_size=_LOADER_BATCH, seed=seed, shuffle_buffer=shuffle_buffer,
+                      by=config.split.by, val_fraction=config.split.val_fraction, split_seed=config.split.seed,
+                      stack_images=False)
+
+
 def _rows(data_dir: str | os.PathLike, config: TrainConfig, split: str, seed, shuffle_buffer: int,
           gripper: str) -> Iterator[dict[str, np.ndarray]]:
-  """Loader batches restricted to ``gripper``'s rows (possibly empty dicts are skipped)."""
+  """Loader batches restricted to ``gripper``'s rows (batches without any are skipped)."""
   code = GRIPPER_NAMES.index(gripper)
-  for batch in iterate_rows(data_dir, split, batch_size=_LOADER_BATCH, seed=seed, shuffle_buffer=shuffle_buffer,
-                            by=config.split.by, val_fraction=config.split.val_fraction,
-                            split_seed=config.split.seed, stack_images=False):
+  for batch in _split_rows(data_dir, config, split, seed, shuffle_buffer):
     sel = batch['gripper'] == code
     if sel.any():
       yield {k: v[sel] for k, v in batch.items()}
@@ -165,9 +171,7 @@ def dataset_stats(data_dir: str | os.PathLike, config: TrainConfig) -> dict[str,
   samples: dict[str, list] = {g: [] for g in config.grippers}
   taken = {g: 0 for g in config.grippers}
   rng = np.random.default_rng([config.seed, 0x57A7])
-  for batch in iterate_rows(data_dir, 'train', batch_size=_LOADER_BATCH, seed=config.seed, shuffle_buffer=0,
-                            by=config.split.by, val_fraction=config.split.val_fraction,
-                            split_seed=config.split.seed, stack_images=False):
+  for batch in _split_rows(data_dir, config, 'train', config.seed, 0):
     for gripper in config.grippers:
       sel = batch['gripper'] == GRIPPER_NAMES.index(gripper)
       counts[gripper][0] += int(sel.sum())

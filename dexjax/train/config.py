@@ -13,7 +13,7 @@ import dataclasses
 import os
 from typing import Any, Mapping
 
-from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override
+from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override, string_list
 from dexjax.data.shards import GRIPPER_NAMES
 from dexjax.models.gqcnn import PARALLEL_JAW_POSE_DIM, SUCTION_POSE_DIM, GQCNNConfig
 from dexjax.train.step import OptimizerConfig
@@ -168,14 +168,6 @@ def _model(values: Mapping[str, Any] | None, source: str) -> GQCNNConfig:
   return dataclasses.replace(override(model, values, source=source, section='model', minimum=0), **tuples)
 
 
-def _grippers(value: Any, source: str) -> tuple[str, ...]:
-  if isinstance(value, str):
-    value = [value]
-  if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-    raise ConfigError(source, 'grippers', f'expected a list of names from {GRIPPER_NAMES}, got {value!r}')
-  return tuple(value)
-
-
 _TOP = ('seed', 'grippers', 'model', 'crop_window', 'optimizer', 'loop', 'split', 'checkpoint', 'quickstart')
 
 
@@ -193,14 +185,12 @@ def train_config_from_dict(data: Mapping[str, Any], source: str = '<config>') ->
   objects = quickstart.pop('objects', None)
   qs = override(c.quickstart, quickstart, source=source, section='quickstart', minimum=1)
   if objects is not None:
-    if isinstance(objects, str):
-      objects = [objects]
-    if not isinstance(objects, list) or not objects or not all(isinstance(o, str) and o for o in objects):
-      raise ConfigError(source, 'quickstart.objects', f'expected a non-empty list of object sources, got {objects!r}')
-    qs = dataclasses.replace(qs, objects=tuple(objects))
+    qs = dataclasses.replace(qs, objects=string_list(objects, source=source, field='quickstart.objects',
+                                                     what='object sources'))
   config = dataclasses.replace(
       scalars,
-      grippers=_grippers(data['grippers'], source) if 'grippers' in data else c.grippers,
+      grippers=(string_list(data['grippers'], source=source, field='grippers', what=f'names from {GRIPPER_NAMES}')
+                if 'grippers' in data else c.grippers),
       model=_model(data.get('model'), source),
       optimizer=override(c.optimizer, data.get('optimizer'), source=source, section='optimizer', minimum=0),
       loop=override(c.loop, data.get('loop'), source=source, section='loop', minimum=0),

@@ -66,6 +66,15 @@ def _crop_batch(patches: jax.Array, centers: jax.Array, angle: jax.Array, window
 _crops = jax.jit(_crop_batch, static_argnums=(3, 4))
 
 
+def _bucketed_crops(patches: np.ndarray, centers: np.ndarray, angles: np.ndarray, window: int,
+                    size: int) -> np.ndarray:
+  """`_crops` of M patches, padded to a power-of-two count (at least 8) so any M compiles one of a few shapes."""
+  m = len(patches)
+  bucket = max(8, 1 << (m - 1).bit_length())
+  pad = lambda x: np.concatenate([x, np.zeros((bucket - m,) + x.shape[1:], x.dtype)])
+  return np.asarray(_crops(pad(patches), pad(centers), pad(angles), window, size))[:m]
+
+
 def _check_gripper(gripper: str) -> None:
   if gripper not in GRIPPER_NAMES:
     raise ValueError(f'gripper: expected one of {GRIPPER_NAMES}, got {gripper!r}')
@@ -94,7 +103,7 @@ def gripper_examples(batch: Mapping[str, np.ndarray], gripper: str, crop_size: i
             'labels': np.zeros(0, np.int32), 'robust_probability': np.zeros(0, np.float32)}
   window = crop_size if crop_window is None else crop_window
   patches, centers = grasp_patches(rows['depth'], rows['center'], window)
-  crops = np.asarray(_crops(patches, centers, np.asarray(rows['angle'], np.float32), window, crop_size))
+  crops = _bucketed_crops(patches, centers, np.asarray(rows['angle'], np.float32), window, crop_size)
   return {'crops': crops[..., None], 'poses': pose_vectors(rows, gripper),
           'labels': (rows['reward'] == 1).astype(np.int32),
           'robust_probability': rows['robust_probability'].astype(np.float32)}

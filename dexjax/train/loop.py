@@ -13,7 +13,6 @@ uninterrupted run and ends with the same parameters.
 from __future__ import annotations
 
 import functools
-import math
 import os
 import time
 from pathlib import Path
@@ -54,6 +53,11 @@ def _host(tree: Any) -> Any:
   return jax.tree.map(lambda x: np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else x, tree)
 
 
+def _steps_per_epoch(stats: GripperStats, config: TrainConfig) -> int:
+  """Whole batches of an epoch of the expected size (the learning-rate schedule's unit), at least 1."""
+  return max(1, stats.examples_per_epoch(config.loop.class_balance) // config.loop.batch_size)
+
+
 def _better(metric: str, value: float | None, best: float | None) -> bool:
   if value is None:
     return False
@@ -89,7 +93,7 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
   mesh = data_mesh()
   check_batch_size(config.loop.batch_size, mesh)
   model_config = config.model_config(gripper)
-  steps_per_epoch = max(1, stats.examples_per_epoch(config.loop.class_balance) // config.loop.batch_size)
+  steps_per_epoch = _steps_per_epoch(stats, config)
   schedule = learning_rate_schedule(config.optimizer, steps_per_epoch)
   key = jax.random.key(config.seed)
   state = create_state(jax.random.fold_in(key, 0), model_config, make_optimizer(config.optimizer, steps_per_epoch))
@@ -164,8 +168,8 @@ def final_state_params(out_dir: str | os.PathLike, config: TrainConfig, gripper:
                        stats: GripperStats) -> Any:
   """Parameters of the newest training checkpoint of ``gripper`` (host arrays), e.g. to compare two runs."""
   model_config = config.model_config(gripper)
-  steps_per_epoch = max(1, stats.examples_per_epoch(config.loop.class_balance) // config.loop.batch_size)
-  template = create_state(jax.random.key(0), model_config, make_optimizer(config.optimizer, steps_per_epoch))
+  template = create_state(jax.random.key(0), model_config,
+                          make_optimizer(config.optimizer, _steps_per_epoch(stats, config)))
   with Checkpointer(Path(out_dir) / gripper, config.checkpoint) as checkpointer:
     restored = checkpointer.restore(template)
   if restored is None:
@@ -173,10 +177,4 @@ def final_state_params(out_dir: str | os.PathLike, config: TrainConfig, gripper:
   return _host(restored[0].params)
 
 
-def expected_steps(stats: GripperStats, config: TrainConfig) -> int:
-  """SGD steps of a whole run (epochs x whole batches of the expected epoch size)."""
-  return config.loop.epochs * math.floor(stats.examples_per_epoch(config.loop.class_balance) /
-                                         config.loop.batch_size)
-
-
-__all__ = ['Interrupted', 'expected_steps', 'final_state_params', 'sgd_step', 'train_gripper']
+__all__ = ['Interrupted', 'final_state_params', 'sgd_step', 'train_gripper']

@@ -14,6 +14,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from dexjax.geometry.cache import atomic_write_text
+
 METRICS_FILE = 'metrics.jsonl'
 CURVES_FILE = 'curves.png'
 
@@ -27,14 +29,6 @@ def read_records(out_dir: str | os.PathLike) -> list[dict[str, Any]]:
     return [json.loads(line) for line in f if line.strip()]
 
 
-def _write_records(out_dir: Path, records: list[dict[str, Any]]) -> None:
-  path = out_dir / METRICS_FILE
-  tmp = path.with_suffix('.tmp')
-  with open(tmp, 'w') as f:
-    f.writelines(json.dumps(r) + '\n' for r in records)
-  os.replace(tmp, path)
-
-
 def append_record(out_dir: str | os.PathLike, record: dict[str, Any]) -> None:
   """Appends one record (a line) to ``OUT/metrics.jsonl``."""
   with open(Path(out_dir) / METRICS_FILE, 'a') as f:
@@ -46,7 +40,7 @@ def prune_records(out_dir: str | os.PathLike, gripper: str, last_epoch: int) -> 
   records = read_records(out_dir)
   kept = [r for r in records if r['gripper'] != gripper or r['epoch'] <= last_epoch]
   if len(kept) != len(records):
-    _write_records(Path(out_dir), kept)
+    atomic_write_text(Path(out_dir) / METRICS_FILE, ''.join(json.dumps(r) + '\n' for r in kept))
 
 
 def plot_curves(out_dir: str | os.PathLike) -> Path | None:

@@ -14,7 +14,7 @@ from typing import Any
 import yaml
 
 from dexjax.data.loader import list_shards
-from dexjax.geometry.cache import default_cache_dir
+from dexjax.geometry.cache import atomic_write_text, default_cache_dir
 from dexjax.train.batches import GripperStats, dataset_stats
 from dexjax.train.checkpoint import CHECKPOINT_DIR, normalization_to_json
 from dexjax.train.config import TrainConfig, config_to_dict, train_config_from_dict
@@ -31,14 +31,14 @@ def quickstart_dataset(config: TrainConfig, cache_dir: str | os.PathLike | None 
                        log=print) -> Path:
   """The built-in dataset of ``config.quickstart``: generated with Dex-Net 4.0's generation defaults on first
   use under ``<cache>/datasets/`` and reused (or completed, if a run was interrupted) afterwards."""
-  from dexjax.generate import GenerateConfig, fingerprint, generate_dataset  # pylint: disable=g-import-not-at-top
+  # pylint: disable-next=g-import-not-at-top (the generator's imports are slow; only the quick start needs them)
+  from dexjax.generate import GenerateConfig, fingerprint, generate_dataset, num_shards
   gen = GenerateConfig()
   gen = dataclasses.replace(gen, objects=dataclasses.replace(gen.objects, sources=config.quickstart.objects))
   cache = Path(cache_dir) if cache_dir is not None else Path(default_cache_dir())
   out = cache / 'datasets' / f'quickstart-{fingerprint(gen)[:12]}'
   images = config.quickstart.num_images
-  shards = -(-images // gen.dataset.images_per_shard)
-  if len(list_shards(out)) >= shards:
+  if len(list_shards(out)) >= num_shards(gen, images):
     log(f'dataset: {out} (cached)')
     return out
   log(f'dataset: generating {images} heap images of {", ".join(config.quickstart.objects)} into {out} '
@@ -64,12 +64,6 @@ def _check_resume_config(out: Path, config: TrainConfig) -> None:
   if dataclasses.replace(saved, loop=dataclasses.replace(saved.loop, epochs=config.loop.epochs)) != config:
     raise ValueError(f'{path}: the run was started with another config; resume it with the same --config (only '
                      f'loop.epochs may change), or train into another --out')
-
-
-def _write_json(path: Path, data: Any) -> None:
-  tmp = path.with_suffix('.tmp')
-  tmp.write_text(json.dumps(data, indent=1) + '\n')
-  os.replace(tmp, path)
 
 
 def _stats_json(stats: dict[str, GripperStats]) -> dict[str, Any]:
@@ -101,10 +95,10 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
                             f'continue it, or choose another --out')
   if is_main_process():
     out.mkdir(parents=True, exist_ok=True)
-    (out / CONFIG_FILE).write_text(yaml.safe_dump(config_to_dict(config), sort_keys=False))
+    atomic_write_text(out / CONFIG_FILE, yaml.safe_dump(config_to_dict(config), sort_keys=False))
   stats = dataset_stats(data_dir, config)
   if is_main_process():
-    _write_json(out / STATS_FILE, _stats_json(stats))
+    atomic_write_text(out / STATS_FILE, json.dumps(_stats_json(stats), indent=1) + '\n')
   for gripper, s in stats.items():
     log(f'{gripper}: {s.train_rows} training rows, {100 * s.positive_rate:.1f} % positive')
   results = {}
@@ -114,7 +108,7 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
   summary = {'grippers': results, 'seconds': time.perf_counter() - start, 'data': os.fspath(data_dir),
              'out': os.fspath(out)}
   if is_main_process():
-    _write_json(out / SUMMARY_FILE, summary)
+    atomic_write_text(out / SUMMARY_FILE, json.dumps(summary, indent=1) + '\n')
     log(format_summary(results, out))
   return summary
 
