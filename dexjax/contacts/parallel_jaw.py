@@ -22,7 +22,7 @@ from flax import struct
 
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.geometry.sdf import first_crossing, surface_normal
-from dexjax.geometry.transforms import normalize, tangent_basis
+from dexjax.geometry.transforms import aligned_tangent_basis, normalize
 from dexjax.grasps import ParallelJawGrasp
 from dexjax.grippers import ParallelJawGripper
 
@@ -80,7 +80,7 @@ def _contact_columns(point, normal, direction, center_of_mass, friction, gripper
   """(6, m + 2) soft-finger wrench columns of one contact (forces N; torques N m x torque_scale)."""
   m = gripper.num_cone_edges
   beta = jnp.maximum(jnp.dot(direction, normal), 0.0)
-  t1, t2 = tangent_basis(normal)
+  t1, t2 = aligned_tangent_basis(normal)  # Dex-Net's cone azimuth: t1 along x projected
   angles = 2.0 * jnp.pi * jnp.arange(m) / m
   edges = normal[None, :] + friction * (jnp.cos(angles)[:, None] * t1 + jnp.sin(angles)[:, None] * t2)
   forces = beta * edges  # (m, 3)

@@ -18,10 +18,12 @@ def normalize(v: jax.Array, eps: float = _EPS) -> jax.Array:
 
 
 def tangent_basis(normal: jax.Array) -> tuple[jax.Array, jax.Array]:
-  """Orthonormal tangents (t1, t2) of a unit ``normal`` (3,), with t2 = normal x t1.
+  """Orthonormal tangents (t1, t2) of a unit ``normal`` (3,), with t2 = normal x t1: a deterministic frame for
+  poses, cones and lip polygons.
 
-  As in Dex-Net, t1 is the projection of the frame's x axis onto the tangent plane (the y axis when the
-  normal is within ~8 degrees of x), so the azimuth of a discretised friction cone is deterministic.
+  t1 is the projection of the frame's x axis onto the tangent plane, or of the y axis when the normal is within
+  ~8 degrees of x (so t1 never comes from a short, ill-conditioned projection). This is *not* Dex-Net's
+  friction-cone frame near x; the soft-finger cone uses `aligned_tangent_basis` for that.
   """
   ex = jnp.array([1.0, 0.0, 0.0], normal.dtype)
   ey = jnp.array([0.0, 1.0, 0.0], normal.dtype)
@@ -29,6 +31,29 @@ def tangent_basis(normal: jax.Array) -> tuple[jax.Array, jax.Array]:
   t1 = normalize(ref - jnp.dot(ref, normal) * normal)
   t2 = jnp.cross(normal, t1)
   return t1, t2
+
+
+def aligned_tangent_basis(normal: jax.Array) -> tuple[jax.Array, jax.Array]:
+  """Orthonormal tangents (t1, t2 = normal x t1) of a unit ``normal`` (3,) with t1 along the projection of the
+  frame's x axis onto the tangent plane, for every normal not parallel to x.
+
+  Dex-Net's friction cone (`Contact3D.tangents(align_axes=True)`) searches 1,000 azimuths of the tangent plane
+  for the one with the largest inner product with x, i.e. this projection to within 0.18 degrees; it keeps x
+  however close the normal is to it. The projection x - n_x n of a unit normal is written
+  (n_y^2 + n_z^2, -n_x n_y, -n_x n_z), whose length is s = sqrt(n_y^2 + n_z^2), so it stays accurate in float32
+  right up to the normal being x. Only when s < 1e-6 (the normal is +-x to float32 precision, where Dex-Net's
+  search returns an arbitrary SVD tangent) does t1 fall back to `tangent_basis`. Differentiable everywhere
+  (the fallback branch's gradient is not NaN). t2's sign differs from Dex-Net's w = (-normal) x t1, which does
+  not change a cone sampled at symmetric azimuths.
+  """
+  nx, ny, nz = normal[0], normal[1], normal[2]
+  sq = ny * ny + nz * nz
+  aligned = sq > 1e-12
+  s = jnp.sqrt(jnp.where(aligned, sq, 1.0))
+  projected = jnp.stack([s, -nx * ny / s, -nx * nz / s])
+  fallback, _ = tangent_basis(normal)
+  t1 = jnp.where(aligned, projected, fallback)
+  return t1, jnp.cross(normal, t1)
 
 
 def so3_exp(omega: jax.Array) -> jax.Array:
