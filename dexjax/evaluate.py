@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
   from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top
   from dexjax.data.shards import GRIPPER_NAMES, ShardError  # pylint: disable=g-import-not-at-top
   from dexjax.models.saved import load  # pylint: disable=g-import-not-at-top
-  from dexjax.train.evaluate import evaluate_model  # pylint: disable=g-import-not-at-top
+  from dexjax.train.validation import evaluate_model  # pylint: disable=g-import-not-at-top
   checkpoint = Path(args.checkpoint).absolute()
   try:
     if args.batch_size < 1:

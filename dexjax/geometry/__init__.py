@@ -1,32 +1,22 @@
-"""Object geometry: mesh loading and repair, signed distance grids and the `ObjectModel` pytree."""
+"""Object geometry: mesh loading and repair, signed distance grids, the `ObjectModel` pytree, its on-disk cache and
+small SO(3) / vector helpers.
 
-from dexjax.geometry.build import build_object_model
-from dexjax.geometry.build import grid_frame
-from dexjax.geometry.build import sample_surface
-from dexjax.geometry.cache import CACHE_ENV_VAR
-from dexjax.geometry.cache import CACHE_FORMAT_VERSION
-from dexjax.geometry.cache import atomic_write_npz
-from dexjax.geometry.cache import atomic_write_text
-from dexjax.geometry.cache import cache_key
-from dexjax.geometry.cache import content_key
-from dexjax.geometry.cache import cached_object_model
-from dexjax.geometry.cache import default_cache_dir
-from dexjax.geometry.cache import mesh_content_key
-from dexjax.geometry.mesh_io import MAX_HOLE_EDGES
-from dexjax.geometry.mesh_io import MeshError
-from dexjax.geometry.mesh_io import SUPPORTED_EXTENSIONS
-from dexjax.geometry.mesh_io import load_mesh
-from dexjax.geometry.mesh_io import validate_and_repair
+Cache internals (file keys, atomic writers) stay in `dexjax.geometry.cache`; they are not part of this surface.
+"""
+
+from dexjax.geometry.build import build_object_model, grid_frame, sample_surface
+from dexjax.geometry.cache import CACHE_ENV_VAR, cached_object_model, default_cache_dir
+from dexjax.geometry.mesh_io import MAX_HOLE_EDGES, SUPPORTED_EXTENSIONS, MeshError, load_mesh, validate_and_repair
 from dexjax.geometry.object_model import ObjectModel
-from dexjax.geometry.sdf import first_crossing
-from dexjax.geometry.sdf import ray_cast
-from dexjax.geometry.sdf import sdf_gradient
-from dexjax.geometry.sdf import sdf_value
-from dexjax.geometry.sdf import surface_normal
-from dexjax.geometry.transforms import normalize
-from dexjax.geometry.transforms import perpendicular
-from dexjax.geometry.transforms import quat_to_matrix
-from dexjax.geometry.transforms import sample_cone
-from dexjax.geometry.transforms import sample_unit_sphere
-from dexjax.geometry.transforms import so3_exp
-from dexjax.geometry.transforms import tangent_basis
+from dexjax.geometry.sdf import first_crossing, ray_cast, sdf_gradient, sdf_value, surface_normal
+from dexjax.geometry.transforms import (aligned_tangent_basis, normalize, perpendicular, quat_to_matrix, sample_cone,
+                                        sample_unit_sphere, so3_exp, tangent_basis)
+
+__all__ = [
+    "ObjectModel", "build_object_model", "grid_frame", "sample_surface",
+    "CACHE_ENV_VAR", "cached_object_model", "default_cache_dir",
+    "MAX_HOLE_EDGES", "SUPPORTED_EXTENSIONS", "MeshError", "load_mesh", "validate_and_repair",
+    "first_crossing", "ray_cast", "sdf_gradient", "sdf_value", "surface_normal",
+    "aligned_tangent_basis", "normalize", "perpendicular", "quat_to_matrix", "sample_cone", "sample_unit_sphere",
+    "so3_exp", "tangent_basis",
+]

@@ -1,5 +1,6 @@
 """GQ-CNN models in Flax: the Dex-Net 4.0 grasp-quality network (`GQCNN`, spec section 2.2), a small variant for
-CPU runs, its fully convolutional application to whole images (`score_map`, spec section 2.3), and input
+CPU runs, its application to every stride-aligned, axis-aligned crop of a whole image at one pose (`score_map`; a
+sliding window, not the FC-GQ-CNN of spec section 2.3), and input
 normalisation fitted on the training split (`fit_normalization`)."""
 
 from dexjax.models.fully_convolutional import output_stride, score_map, score_map_shape

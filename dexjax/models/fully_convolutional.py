@@ -1,4 +1,10 @@
-"""A trained GQ-CNN applied fully convolutionally to a whole image (spec section 2.3), without retraining.
+"""A trained GQ-CNN slid over a whole image as a convolution, without retraining: a single-depth, axis-aligned
+sliding window.
+
+This is *not* the FC-GQ-CNN of spec section 2.3: that network is trained for dense use (unrotated crops, 16
+angular output bins for the parallel jaw, the image taken relative to each candidate gripper depth and scored at
+several depths); here one pose (gripper depth, approach angle) is applied to every cell and crops are not rotated,
+so a cell scores only the grasp whose axis is the image's x axis at that pixel.
 
 The dense fc3 layer becomes a VALID convolution whose F x F x C kernel is fc3's kernel reshaped (the flatten
 order is NHWC, so no transpose), and the pose and merge layers are applied per output cell. Output cell (i, j)

@@ -61,7 +61,8 @@ class GraspQualityModel:
   def score_image(self, depth: jax.Array, pose: jax.Array) -> jax.Array:
     """p(success) (H', W') of every stride-aligned, axis-aligned crop of a raw depth image (H, W) metres, with
     one raw pose (pose_dim,) or one per cell (H', W', pose_dim): `dexjax.models.score_map` with this model's
-    normalisation. Cell (i, j) is the crop centred at (s i + S / 2, s j + S / 2), s = `output_stride`.
+    normalisation. Cell (i, j) is the crop centred at (s i + S / 2, s j + S / 2), s = `output_stride`. A
+    single-depth, axis-aligned sliding window (crops are not rotated): not the FC-GQ-CNN of spec section 2.3.
 
     Raises:
       ValueError: the model reads resampled windows (``crop_window != config.crop_size``); resample the image

@@ -34,6 +34,17 @@ from dexjax.objects.sets import expand_object_sources
 from dexjax.objects.sets import load_object_set
 from dexjax.objects.sets import prepare_object_set
 
+__all__ = [
+    "BUILTIN_OBJECTS", "BUILTIN_PREFIX", "builtin_mesh", "load_object_model", "resolve_mesh",
+    "MAX_EXTENT", "MAX_FACES", "MIN_EXTENT", "PROCEDURAL_LEVELS", "PROCEDURAL_PREFIX", "parse_procedural_spec",
+    "procedural_families", "procedural_mesh", "procedural_mesh_problems", "procedural_params", "procedural_spec",
+    "procedural_specs",
+    "CONVEX_SOLIDITY", "cached_collision_hulls", "collision_hulls", "hulls_cache_key",
+    "FolderReport", "LoadedObject", "PreparedObject", "Rejection", "load_mesh_folder", "prepare_object",
+    "expand_object_sources", "load_object_set", "prepare_object_set",
+    "save_contact_sheet",
+]
+
 
 def __getattr__(name: str):
   """Lazily provides `save_contact_sheet` (imports matplotlib only when previews are drawn)."""

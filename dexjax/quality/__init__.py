@@ -1,6 +1,6 @@
 """Analytic grasp quality: wrench resistance, deterministic and robust (Monte-Carlo) quality, heap rewards."""
 
-from dexjax.quality.evaluate import GraspEvaluation, evaluate_grasps
+from dexjax.quality.batched import GraspEvaluation, evaluate_grasps
 from dexjax.quality.grasp_quality import (FAILURE_REASONS, Conditions, GraspOutcome, QualityConfig,
                                           external_wrench, parallel_jaw_quality, suction_quality)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_SAMPLES, SUPERVISOR_THRESHOLD,

@@ -16,7 +16,7 @@ from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, overr
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.grasps import parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
-from dexjax.quality.evaluate import evaluate_grasps
+from dexjax.quality.batched import evaluate_grasps
 from dexjax.quality.grasp_json import grasp_record, parse_grasps, stack_parallel_jaw, stack_suction
 from dexjax.quality.grasp_quality import FAILURE_REASONS, QualityConfig
 from dexjax.quality.robust import Perturbations, parallel_jaw_perturbations, suction_perturbations

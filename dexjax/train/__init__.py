@@ -1,7 +1,7 @@
 """GQ-CNN training (``python -m dexjax.train``): examples and augmentation from dataset rows (`data`), reproducible
 fixed-size batches and training-split statistics (`batches`), the jitted step with Dex-Net 4.0's optimiser
 (`step`), the per-gripper loop with validation, checkpoints and the best model (`loop`, `checkpoint`), data
-parallelism (`distributed`), metrics (`metrics`, `evaluate`, `report`), configs (`config`) and whole runs (`run`).
+parallelism (`distributed`), metrics (`metrics`, `validation`, `report`), configs (`config`) and whole runs (`run`).
 """
 
 from dexjax.train.batches import GripperStats, dataset_stats, eval_batches, train_batches
@@ -10,7 +10,7 @@ from dexjax.train.config import (BEST_METRICS, CLASS_BALANCE, CheckpointConfig, 
                                  SplitConfig, TrainConfig, config_to_dict, load_train_config, train_config_from_dict)
 from dexjax.train.data import gripper_examples, pose_vectors, symmetrize
 from dexjax.train.distributed import data_mesh, replicate, shard_batch
-from dexjax.train.evaluate import evaluate_model
+from dexjax.train.validation import evaluate_model
 from dexjax.train.loop import Interrupted, final_state_params, sgd_step, train_gripper
 from dexjax.train.metrics import average_precision, classification_metrics
 from dexjax.train.report import plot_curves, read_records

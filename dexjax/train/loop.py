@@ -28,7 +28,7 @@ from dexjax.train.checkpoint import Checkpointer, normalization_from_json, norma
 from dexjax.train.config import TrainConfig, config_to_dict
 from dexjax.train.data import symmetrize
 from dexjax.train.distributed import check_batch_size, data_mesh, is_main_process, replicate, shard_batch
-from dexjax.train.evaluate import evaluate_model
+from dexjax.train.validation import evaluate_model
 from dexjax.train.report import append_record, format_epoch, plot_curves, prune_records
 from dexjax.train.step import TrainState, create_state, learning_rate_schedule, make_optimizer, train_step
 
