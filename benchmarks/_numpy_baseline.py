@@ -1,22 +1,40 @@
-"""The original's way, for the throughput benchmark: per grasp and per Monte-Carlo sample, NumPy contact
-finding on the distance grid and a general-purpose QP (cvxopt, as Dex-Net) for wrench resistance.
+"""The original's way, for the throughput benchmarks: per grasp and per Monte-Carlo sample, NumPy contact
+finding on the distance grid and one small wrench-resistance problem per sample, solved one at a time.
 
 Same physics and parameters as dexjax (so the comparison is like for like), written the way Dex-Net runs it:
-one grasp, one sample, one QP at a time. Contact finding is vectorised over a jaw's line samples (more
-generous than Dex-Net's Python loop over them).
+one grasp, one sample, one solve at a time. Contact finding is vectorised over a jaw's line samples (more
+generous than Dex-Net's Python loop over them). Two solvers for the wrench-resistance step (``solver=``):
+
+* ``'cvxopt'`` (Dex-Net's own): a cvxopt interior-point QP per problem with **cvxopt's default tolerances**
+  (abstol 1e-7, reltol 1e-6, feastol 1e-7, 100 iterations); like Dex-Net's ``quality.py``, this module only
+  silences the progress output (``cvxopt.solvers.options['show_progress'] = False``). Parallel jaw:
+  min ||G a - t||^2 + ||e||^2 over a >= 0, e >= 0, C a - e <= c (the per-finger force limit with its excess
+  paid in the residual, dexjax's semantics; Dex-Net itself makes the limit hard and adds a 1e-10 ridge).
+  Suction: the spec's 6-variable QP with 11 linear inequalities (contact-frame force and torque).
+* ``'nnls'`` (a stronger plain baseline): the same problems posed as dexjax poses them, as a non-negative
+  least-squares problem lifted with one slack per force-limit group (`lift`, a NumPy copy of
+  ``dexjax.quality.wrench.lift_bounded_groups``), each solved by ``scipy.optimize.nnls`` (Lawson--Hanson in
+  compiled code, float64). Suction uses dexjax's polyhedral form of the same constraint set
+  (``dexjax.contacts.suction.suction_wrenches``: 8 cone generators and two bounded +/- elastic-torque pairs).
+
+Both solvers see exactly the same random draws and contacts (the random generator is consumed before the
+solve), so their per-sample decisions can be compared directly. ``problems=`` collects each solved problem
+(`WrenchProblem`) for a solver-only comparison.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import cvxopt
 import numpy as np
+import scipy.optimize
 
+# Dex-Net's setting: progress output off, cvxopt's default tolerances kept (not tightened).
 cvxopt.solvers.options["show_progress"] = False
-cvxopt.solvers.options["abstol"] = 1e-10
-cvxopt.solvers.options["reltol"] = 1e-10
-cvxopt.solvers.options["feastol"] = 1e-10
+
+SOLVERS = ("cvxopt", "nnls")
 
 _CORNERS = np.array(list(itertools.product((0, 1), repeat=3)))
 
@@ -78,8 +96,31 @@ def _tangents(n):
   return t1, np.cross(n, t1)
 
 
-def _qp_residual(G, t, groups, limits):
-  """min ||G a - t||^2 + ||e||^2, a >= 0, e >= 0, groups a - e <= limits (cvxopt)."""
+@dataclasses.dataclass(frozen=True)
+class WrenchProblem:
+  """One wrench-resistance problem as each solver receives it.
+
+  Attributes:
+    kind: ``'parallel_jaw'`` or ``'suction'``.
+    cvxopt_args: the arguments of `pj_residual_cvxopt` or `suction_residual_cvxopt`.
+    a, b: the lifted NNLS system, (6 + k, n + k) and (6 + k,) float64 (8 x 22 parallel jaw, 8 x 14 suction).
+  """
+
+  kind: str
+  cvxopt_args: tuple
+  a: np.ndarray
+  b: np.ndarray
+
+  def residual(self, solver: str) -> float:
+    """The residual (N) with ``solver`` (``'cvxopt'`` or ``'nnls'``)."""
+    if solver == "nnls":
+      return nnls_residual(self.a, self.b)
+    fn = pj_residual_cvxopt if self.kind == "parallel_jaw" else suction_residual_cvxopt
+    return fn(*self.cvxopt_args)
+
+
+def pj_residual_cvxopt(G, t, groups, limits):
+  """min ||G a - t||^2 + ||e||^2, a >= 0, e >= 0, groups a - e <= limits (cvxopt, default tolerances)."""
   n, k = G.shape[1], groups.shape[0]
   P = np.zeros((n + k, n + k))
   P[:n, :n] = G.T @ G
@@ -90,6 +131,62 @@ def _qp_residual(G, t, groups, limits):
   sol = cvxopt.solvers.qp(cvxopt.matrix(2 * P), cvxopt.matrix(2 * q), cvxopt.matrix(Gi), cvxopt.matrix(h))
   x = np.array(sol["x"]).ravel()
   return float(np.sqrt(max(np.sum((G @ x[:n] - t) ** 2) + np.sum(x[n:] ** 2), 0.0)))
+
+
+def suction_residual_cvxopt(A, b, mu, r, V, elastic):
+  """min ||A z - b|| over the spec's 11 inequalities on z = (f, tau) (cvxopt, default tolerances).
+
+  A (6, 6) maps contact-frame force and torque to the scaled object wrench; b (6,) is the target; ``mu``
+  friction, ``r`` cup radius (m), ``V`` vacuum force (N), ``elastic`` = pi r kappa (N m).
+  """
+  k3, k2 = np.sqrt(3), np.sqrt(2)
+  Gi, hi = [], []
+  for sg in (1, -1):
+    Gi += [[sg * k3, 0, -mu, 0, 0, 0], [0, sg * k3, -mu, 0, 0, 0], [0, 0, -mu * r, 0, 0, sg * k3],
+           [0, 0, 0, sg * k2, 0, 0], [0, 0, 0, 0, sg * k2, 0]]
+    hi += [mu * V, mu * V, mu * r * V, elastic, elastic]
+  Gi.append([0, 0, -1, 0, 0, 0])
+  hi.append(V)
+  sol = cvxopt.solvers.qp(cvxopt.matrix(2 * A.T @ A), cvxopt.matrix(-2 * A.T @ b), cvxopt.matrix(np.array(Gi, float)),
+                          cvxopt.matrix(np.array(hi, float)))
+  z = np.array(sol["x"]).ravel()
+  return float(np.linalg.norm(A @ z - b))
+
+
+def lift(G, t, groups, limits):
+  """The lifted NNLS system [[G, 0], [groups, I]] x = [t; limits] (``dexjax.quality.wrench.lift_bounded_groups``
+  in float64): min_{x >= 0} ||A x - b|| = sqrt(min_{a >= 0} ||G a - t||^2 + ||max(0, groups a - limits)||^2)."""
+  k = groups.shape[0]
+  A = np.block([[G, np.zeros((G.shape[0], k))], [groups, np.eye(k)]])
+  return A, np.concatenate([t, limits])
+
+
+def nnls_residual(A, b):
+  """min_{x >= 0} ||A x - b|| by ``scipy.optimize.nnls`` (Lawson--Hanson, float64, SciPy's defaults)."""
+  return float(scipy.optimize.nnls(A, b)[1])
+
+
+def suction_nnls_system(p, v, b1, b2, com, mu, gripper, s, w):
+  """dexjax's suction problem (``suction_wrenches``) in NumPy, lifted: (A (8, 14), b (8,)).
+
+  ``p`` contact, ``v`` approach, (b1, b2) tangents, ``com`` centre of mass, ``mu`` friction, ``s`` torque
+  scale, ``w`` (6,) external wrench (force N, torque N m, unscaled).
+  """
+  r, k3 = gripper.cup_radius, np.sqrt(3)
+  rot = np.stack([b1, b2, v], 1)
+  signs = np.array(list(itertools.product((1.0, -1.0), repeat=3)))
+  local_f = np.stack([signs[:, 0] * mu / k3, signs[:, 1] * mu / k3, np.ones(8)], 1)
+  forces = local_f @ rot.T
+  arm = p - com
+  torques = s * ((signs[:, 2] * mu * r / k3)[:, None] * v[None] + np.cross(arm, forces))
+  limit = np.pi * r * gripper.elastic_limit / np.sqrt(2)
+  elastic = np.concatenate([np.zeros((4, 3)), s * limit * np.stack([b1, -b1, b2, -b2])], 1)
+  G = np.concatenate([np.concatenate([forces, torques], 1), elastic], 0).T
+  bound = s * limit
+  groups = bound * np.concatenate([np.zeros((2, 8)), np.kron(np.eye(2), np.ones((1, 2)))], 1)
+  vacuum = gripper.vacuum_force * np.concatenate([v, s * np.cross(arm, v)])
+  t = -np.concatenate([w[:3], s * w[3:]]) + vacuum
+  return lift(G, t, groups, np.full(2, bound))
 
 
 def _sample_conditions(rng, pert, approach):
@@ -108,7 +205,15 @@ def _sample_conditions(rng, pert, approach):
   return mass, mu, g, pert.disturbance_sigma * rng.normal(size=6)
 
 
-def parallel_jaw_robust(obj, center, axis, approach, width, gripper, pert, cfg, rng):
+def parallel_jaw_robust(obj, center, axis, approach, width, gripper, pert, cfg, rng, *, solver="cvxopt",
+                        problems=None):
+  """Robust parallel-jaw probability of one grasp (M = ``pert.num_samples``), one sample and solve at a time.
+
+  ``solver``: ``'cvxopt'`` or ``'nnls'`` (see the module docstring); ``problems``: a list that collects every
+  solved `WrenchProblem`, or None.
+  """
+  if solver not in SOLVERS:
+    raise ValueError(f"solver: expected one of {SOLVERS}, got {solver!r}")
   wins = 0
   for _ in range(pert.num_samples):
     c = center + pert.position_sigma * rng.normal(size=3)
@@ -144,7 +249,14 @@ def parallel_jaw_robust(obj, center, axis, approach, width, gripper, pert, cfg, 
     groups = np.kron(np.eye(2), np.ones((1, m)))
     w = dist + np.concatenate([mass * cfg.gravity_acceleration * g, np.zeros(3)])
     target = -np.concatenate([w[:3], cfg.torque_scale * w[3:]])
-    wins += _qp_residual(G, target, groups, np.full(2, gripper.force_limit)) <= cfg.tolerance
+    limits = np.full(2, gripper.force_limit)
+    if solver == "cvxopt":
+      residual = pj_residual_cvxopt(G, target, groups, limits)
+    else:
+      residual = nnls_residual(*lift(G, target, groups, limits))
+    if problems is not None:
+      problems.append(WrenchProblem("parallel_jaw", (G, target, groups, limits), *lift(G, target, groups, limits)))
+    wins += residual <= cfg.tolerance
   return wins / pert.num_samples
 
 
@@ -167,7 +279,10 @@ def _ray(obj, origin, v, steps, max_dist):
   return t, bool(ph < 0.1 * obj.dx and t <= t_exit)
 
 
-def suction_robust(obj, center, approach, gripper, pert, cfg, rng):
+def suction_robust(obj, center, approach, gripper, pert, cfg, rng, *, solver="cvxopt", problems=None):
+  """Robust suction probability of one grasp; ``solver`` and ``problems`` as in `parallel_jaw_robust`."""
+  if solver not in SOLVERS:
+    raise ValueError(f"solver: expected one of {SOLVERS}, got {solver!r}")
   wins = 0
   r, h, n, q = gripper.cup_radius, gripper.cone_height, gripper.num_ring_vertices, gripper.num_edge_subsamples + 1
   for _ in range(pert.num_samples):
@@ -209,7 +324,8 @@ def suction_robust(obj, center, approach, gripper, pert, cfg, rng):
     strain = max(np.abs(per / rest[0] - 1).max(), np.abs(flex / rest[1] - 1).max(), np.abs(cone / rest[2] - 1).max())
     if strain > gripper.max_strain:
       continue
-    # Wrench resistance on the spec's inequality form (contact-frame force and torque), cvxopt.
+    # Wrench resistance: the spec's inequality form (contact-frame force and torque) for cvxopt, dexjax's
+    # polyhedral form lifted to an NNLS for scipy.
     R = np.stack([b1, b2, v], 1)
     s = cfg.torque_scale
     A = np.zeros((6, 6))
@@ -218,16 +334,12 @@ def suction_robust(obj, center, approach, gripper, pert, cfg, rng):
     A[3:, 3:] = s * R
     w = dist + np.concatenate([mass * cfg.gravity_acceleration * g, np.zeros(3)])
     b = -np.concatenate([w[:3], s * w[3:]])
-    V, k3, k2 = gripper.vacuum_force, np.sqrt(3), np.sqrt(2)
-    Gi, hi = [], []
-    for sg in (1, -1):
-      Gi += [[sg * k3, 0, -mu, 0, 0, 0], [0, sg * k3, -mu, 0, 0, 0], [0, 0, -mu * r, 0, 0, sg * k3],
-             [0, 0, 0, sg * k2, 0, 0], [0, 0, 0, 0, sg * k2, 0]]
-      hi += [mu * V, mu * V, mu * r * V, np.pi * r * gripper.elastic_limit, np.pi * r * gripper.elastic_limit]
-    Gi.append([0, 0, -1, 0, 0, 0])
-    hi.append(V)
-    sol = cvxopt.solvers.qp(cvxopt.matrix(2 * A.T @ A), cvxopt.matrix(-2 * A.T @ b), cvxopt.matrix(np.array(Gi, float)),
-                            cvxopt.matrix(np.array(hi, float)))
-    z = np.array(sol["x"]).ravel()
-    wins += np.linalg.norm(A @ z - b) <= cfg.tolerance
+    args = (A, b, mu, r, gripper.vacuum_force, np.pi * r * gripper.elastic_limit)
+    if solver == "cvxopt":
+      residual = suction_residual_cvxopt(*args)
+    else:
+      residual = nnls_residual(*suction_nnls_system(p, v, b1, b2, obj.com, mu, gripper, s, w))
+    if problems is not None:
+      problems.append(WrenchProblem("suction", args, *suction_nnls_system(p, v, b1, b2, obj.com, mu, gripper, s, w)))
+    wins += residual <= cfg.tolerance
   return wins / pert.num_samples
