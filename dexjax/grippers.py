@@ -1,14 +1,19 @@
 """Gripper parameters as frozen pytrees, with the Dex-Net 4.0 defaults (ABB YuMi jaws and a 20 mm suction cup).
 
 Float fields are pytree leaves (they can be traced, batched or differentiated); integer fields that set array
-shapes are static metadata, so changing them recompiles.
+shapes are static metadata, so changing them recompiles. ``validate()`` checks the fields and the rules that tie
+them together (e.g. ``min_width < max_width``) eagerly, before any computing.
 """
 
 from __future__ import annotations
 
 import math
 
+import jax
+import numpy as np
 from flax import struct
+
+from dexjax.config import check_fields, number_or_nan
 
 STANDARD_GRAVITY = 9.81  # m/s^2
 
@@ -36,6 +41,22 @@ class ParallelJawGripper:
   finger_radius: float = 0.005
   num_cone_edges: int = struct.field(pytree_node=False, default=8)
   num_line_samples: int = struct.field(pytree_node=False, default=64)
+
+  def validate(self, source: str = 'ParallelJawGripper', section: str = '') -> ParallelJawGripper:
+    """Returns ``self`` if the fields are consistent; raises `dexjax.config.ConfigError` (a ValueError) naming
+    ``source``, the field and the expected value otherwise. Traced or batched fields are not checked (call it
+    eagerly, on one gripper)."""
+    if _not_concrete(self):
+      return self
+    return check_fields([
+        ('max_width', number_or_nan(self.max_width) > 0, 'a number > 0 (metres)'),
+        ('min_width', 0 <= number_or_nan(self.min_width) < number_or_nan(self.max_width),
+         f'a number in [0, max_width = {self.max_width}) (metres)'),
+        ('force_limit', number_or_nan(self.force_limit) > 0, 'a number > 0 (newtons)'),
+        ('finger_radius', number_or_nan(self.finger_radius) >= 0, 'a number >= 0 (metres)'),
+        ('num_cone_edges', self.num_cone_edges >= 3, 'an integer >= 3'),
+        ('num_line_samples', self.num_line_samples >= 2, 'an integer >= 2'),
+    ], self, source=source, section=section)
 
 
 @struct.dataclass
@@ -70,5 +91,27 @@ class SuctionGripper:
   num_edge_subsamples: int = struct.field(pytree_node=False, default=2)
   num_ray_steps: int = struct.field(pytree_node=False, default=12)
 
+  def validate(self, source: str = 'SuctionGripper', section: str = '') -> SuctionGripper:
+    """Returns ``self`` if the fields are consistent; raises `dexjax.config.ConfigError` (a ValueError) naming
+    ``source``, the field and the expected value otherwise (traced or batched fields: not checked)."""
+    if _not_concrete(self):
+      return self
+    return check_fields([
+        ('cup_radius', number_or_nan(self.cup_radius) > 0, 'a number > 0 (metres)'),
+        ('cone_height', number_or_nan(self.cone_height) > 0, 'a number > 0 (metres)'),
+        ('vacuum_force', number_or_nan(self.vacuum_force) > 0, 'a number > 0 (newtons)'),
+        ('elastic_limit', number_or_nan(self.elastic_limit) >= 0, 'a number >= 0 (newtons per radian)'),
+        ('max_strain', 0 < number_or_nan(self.max_strain) < 1, 'a fraction in (0, 1)'),
+        ('contact_tolerance', number_or_nan(self.contact_tolerance) > 0, 'a number > 0 (metres)'),
+        ('num_ring_vertices', self.num_ring_vertices >= 3, 'an integer >= 3'),
+        ('num_edge_subsamples', self.num_edge_subsamples >= 0, 'an integer >= 0'),
+        ('num_ray_steps', self.num_ray_steps >= 1, 'an integer >= 1'),
+    ], self, source=source, section=section)
+
 
 Gripper = ParallelJawGripper | SuctionGripper
+
+
+def _not_concrete(params) -> bool:
+  """True if a field is a JAX tracer (inside jit / vmap) or a batch of values: validation is then skipped."""
+  return any(isinstance(x, jax.core.Tracer) or np.ndim(x) > 0 for x in jax.tree.leaves(params))

@@ -8,7 +8,8 @@ A camera file given to ``python -m dexjax.generate --camera-config FILE`` is one
   `dexjax.render.load_intrinsics`): every image uses these intrinsics (fx and fy may differ) and image size,
   the pose is still drawn from the distribution;
 * a posed camera file (`dexjax.render.save_camera`: intrinsics plus ``rotation`` and ``position``): every image
-  is taken from exactly this camera.
+  is taken from exactly this camera, which must be above the bin's floor and look down at it
+  (`dexjax.render.intrinsics_io.check_camera_view`; otherwise every image would be empty).
 
 The file's values (not its path) are stored in the `GenerateConfig`, so they are part of the run's fingerprint.
 """
@@ -26,7 +27,7 @@ import yaml
 from dexjax.config import ConfigError, load_yaml, override
 from dexjax.render.camera import Camera, Intrinsics
 from dexjax.render.distribution import CameraDistribution, sample_camera
-from dexjax.render.intrinsics_io import load_camera_or_intrinsics
+from dexjax.render.intrinsics_io import check_camera_view, load_camera_or_intrinsics
 
 _DISTRIBUTION_FIELDS = frozenset(f.name for f in dataclasses.fields(CameraDistribution))
 
@@ -59,8 +60,13 @@ def apply_camera_file(config, path: str | os.PathLike[str]):
     return dataclasses.replace(config, camera=dist, camera_intrinsics=(), camera_pose=())
   try:
     k, camera = load_camera_or_intrinsics(path)
-  except (OSError, ValueError) as e:
-    raise ConfigError(path, '', str(e)) from None
+    if camera is not None:
+      check_camera_view(path, camera, floor_height=0.0, far=config.render.far)  # the bin's floor is z = 0
+  except OSError as e:
+    raise ConfigError(path, '', f'cannot read the file ({e.strerror})') from None
+  except ValueError as e:
+    message = str(e)
+    raise ConfigError(path, '', message[len(path) + 2:] if message.startswith(f'{path}: ') else message) from None
   pose = () if camera is None else tuple(float(x) for x in np.asarray(camera.rotation).reshape(-1)) + tuple(
       float(x) for x in np.asarray(camera.position))
   intrinsics = (float(k.fx), float(k.fy), float(k.cx), float(k.cy), float(k.width), float(k.height))

@@ -12,7 +12,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override
+from dexjax.config import (ConfigError, as_dict, check_fields, check_sections, load_yaml, override,
+                           validate_perturbations)
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.grasps import parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
@@ -75,7 +76,7 @@ def settings_from_config(data: dict[str, Any], source: str) -> ReportSettings:
       raise ConfigError(source, name, f"expected a mapping with keys {' and '.join(_GRIPPERS)}, got {section!r}")
     check_sections(section, _GRIPPERS, source=source, section=name)
   kw = dict(source=source, minimum=0.0)
-  return dataclasses.replace(
+  settings = dataclasses.replace(
       top,
       config=override(s.config, data.get("quality"), section="quality", **kw),
       parallel_jaw=override(s.parallel_jaw, grippers.get("parallel_jaw"), section="grippers.parallel_jaw", **kw),
@@ -84,6 +85,25 @@ def settings_from_config(data: dict[str, Any], source: str) -> ReportSettings:
                                           section="perturbations.parallel_jaw", **kw),
       suction_perturbations=override(s.suction_perturbations, perturbations.get("suction"),
                                      section="perturbations.suction", **kw))
+  return validate_settings(settings, source)
+
+
+def validate_settings(settings: ReportSettings, source: str = "<settings>") -> ReportSettings:
+  """Checks the rules that tie fields together (``min_width < max_width``, a friction range with low <= high,
+  positive mass and cup size, ...) for both grippers and perturbation models; returns ``settings``.
+
+  Raises:
+    ConfigError: naming ``source``, the dotted field (``grippers.parallel_jaw.min_width``) and the expected value.
+  """
+  settings.parallel_jaw.validate(source, "grippers.parallel_jaw")
+  settings.suction.validate(source, "grippers.suction")
+  for name in _GRIPPERS:
+    validate_perturbations(settings.perturbations(name), source=source, section=f"perturbations.{name}")
+  check_fields([("tolerance", settings.config.tolerance > 0, "a number > 0 (newtons)"),
+                ("torque_scale", settings.config.torque_scale > 0, "a number > 0 (1/m)"),
+                ("gravity_acceleration", settings.config.gravity_acceleration >= 0, "a number >= 0 (m/s^2)")],
+               settings.config, source=source, section="quality")
+  return settings
 
 
 def load_settings(path: str | os.PathLike[str]) -> ReportSettings:

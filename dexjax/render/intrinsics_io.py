@@ -36,7 +36,11 @@ ROTATION_TOLERANCE = 1e-4  # max |R^T R - I| and |det R - 1| accepted for a stor
 def _read_mapping(path: str | os.PathLike) -> dict[str, Any]:
   """The top-level mapping of the JSON or YAML file ``path``."""
   name = os.fspath(path)
-  text = Path(path).read_text(encoding='utf-8')
+  try:
+    text = Path(path).read_text(encoding='utf-8')
+  except UnicodeDecodeError as e:
+    raise ValueError(f'{name}: not a text file (byte {e.start} is not UTF-8); expected a JSON or YAML mapping of '
+                     'camera fields') from None
   is_yaml = Path(path).suffix.lower() in ('.yaml', '.yml')
   try:
     if is_yaml:
@@ -252,6 +256,38 @@ def load_camera(path: str | os.PathLike) -> Camera:
   position = _position(name, _field(name, data, 'position')[1])
   return Camera(intrinsics=intrinsics, rotation=jnp.asarray(rotation, jnp.float32),
                 position=jnp.asarray(position, jnp.float32))
+
+
+def check_camera_view(name: str, camera: Camera, floor_height: float = 0.0, far: float | None = None) -> Camera:
+  """Checks that a posed camera can see the bin: its centre is above the floor (world z = ``floor_height``,
+  metres), closer to it than the renderer's ``far`` depth (metres; None: not checked), and at least one pixel's
+  ray goes down toward it. Returns ``camera``.
+
+  A camera below the floor or looking away from it renders an image without a valid pixel; this finds it before
+  any rendering. (Every ray of the image lies in the cone spanned by the four corner rays, so checking those
+  is exact for the floor plane.)
+
+  Raises:
+    ValueError: naming ``name`` and the field (``position`` or ``rotation``) with the expected value.
+  """
+  position = np.asarray(camera.position, np.float64)
+  if not position[2] > floor_height:
+    raise ValueError(f'{name}: position: expected a camera above the floor (position[2] > {floor_height:g} m), '
+                     f'got position[2] = {position[2]:g} m')
+  if far is not None and position[2] - floor_height >= far:
+    raise ValueError(f'{name}: position: expected a camera less than the far depth {far:g} m above the floor, got '
+                     f'position[2] = {position[2]:g} m (every pixel would be beyond the depth range)')
+  k = camera.intrinsics
+  fx, fy, cx, cy = (float(np.asarray(v)) for v in (k.fx, k.fy, k.cx, k.cy))
+  corners = np.array([[(u - cx) / fx, (v - cy) / fy, 1.0] for u in (0.0, k.width - 1.0)
+                      for v in (0.0, k.height - 1.0)])
+  down = corners @ np.asarray(camera.rotation, np.float64).T
+  if not (down[:, 2] < 0).any():
+    axis = np.asarray(camera.rotation, np.float64)[:, 2]
+    raise ValueError(f'{name}: rotation: expected a camera looking down at the bin (the optical axis, the third '
+                     f'column, with a negative z component, e.g. [0, 0, -1]), got optical axis '
+                     f'[{axis[0]:.3g}, {axis[1]:.3g}, {axis[2]:.3g}]: no pixel can see the floor')
+  return camera
 
 
 def load_camera_or_intrinsics(path: str | os.PathLike) -> tuple[Intrinsics, Camera | None]:

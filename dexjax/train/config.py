@@ -132,9 +132,13 @@ class TrainConfig:
               ('checkpoint.every_steps', self.checkpoint.every_steps >= 1, 'an integer >= 1'),
               ('checkpoint.keep', self.checkpoint.keep >= 1, 'an integer >= 1'),
               ('checkpoint.best_metric', self.checkpoint.best_metric in BEST_METRICS, f'one of {BEST_METRICS}'),
+              ('loop.shuffle_buffer', self.loop.shuffle_buffer >= 1, 'an integer >= 1'),
               ('optimizer.learning_rate', self.optimizer.learning_rate > 0, 'a number > 0'),
+              ('optimizer.momentum', 0 <= self.optimizer.momentum < 1, 'a number in [0, 1)'),
+              ('optimizer.decay_rate', 0 < self.optimizer.decay_rate <= 1, 'a factor in (0, 1]'),
               ('optimizer.decay_epochs', self.optimizer.decay_epochs > 0, 'a number > 0'),
-              ('quickstart.num_images', self.quickstart.num_images >= 1, 'an integer >= 1')]
+              ('quickstart.num_images', self.quickstart.num_images >= 1, 'an integer >= 1'),
+              ('quickstart.workers', self.quickstart.workers >= 1, 'an integer >= 1')]
     for field, ok, expected in checks:
       if not ok:
         value = _get(self, field)
