@@ -29,6 +29,7 @@ trimesh's optional graph dependencies are installed.
 from __future__ import annotations
 
 import os
+import warnings
 
 import igl
 import numpy as np
@@ -42,12 +43,19 @@ SUPPORTED_EXTENSIONS: tuple[str, ...] = ('.obj', '.stl', '.ply', '.glb', '.off')
 MAX_HOLE_EDGES: int = 8
 """Boundary loops with at most this many edges are closed by `validate_and_repair`; larger ones are errors."""
 
+PLAUSIBLE_EXTENT: tuple[float, float] = (0.005, 1.0)
+"""Largest extent (metres, after ``scale``) of a graspable object; `load_mesh` warns (`ScaleWarning`) outside it."""
+
 # A mesh is "flat" when the smallest principal extent of its vertices is below this fraction of the largest.
 _FLAT_RELATIVE_TOL = 1e-7
 # A closed mesh is degenerate when |volume| is below this fraction of (largest extent)^3.
 _VOLUME_RELATIVE_TOL = 1e-9
 # Nested-component test: at most this many vertices of a component are tested against the others.
 _NESTING_SAMPLES = 64
+
+
+class ScaleWarning(UserWarning):
+  """A mesh file's size in metres is implausible for a graspable object (most likely a unit mistake)."""
 
 
 class MeshError(ValueError):
@@ -83,6 +91,10 @@ def load_mesh(path: str | os.PathLike[str], *, scale: float = 1.0) -> trimesh.Tr
     MeshError: the extension is unsupported, the file is missing, empty or unreadable, or the mesh cannot
       be repaired (see `validate_and_repair`).
     ValueError: ``scale`` is not a finite positive number.
+
+  Warns:
+    ScaleWarning: the largest extent after scaling is outside `PLAUSIBLE_EXTENT` (5 mm - 1 m), with the
+      ``--scale`` that would fix the likely unit mistake (e.g. 0.001 for a file in millimetres).
   """
   file = os.fspath(path)
   ext = os.path.splitext(file)[1].lower()
@@ -112,7 +124,32 @@ def load_mesh(path: str | os.PathLike[str], *, scale: float = 1.0) -> trimesh.Tr
       faces=np.asarray(mesh.faces, np.int64),
       process=False,
   )
-  return validate_and_repair(mesh, file)
+  mesh = validate_and_repair(mesh, file)
+  check_scale(mesh, file, scale)
+  return mesh
+
+
+def check_scale(mesh: trimesh.Trimesh, name: str, scale: float = 1.0) -> float:
+  """Warns (`ScaleWarning`) when the mesh's largest extent (metres) is outside `PLAUSIBLE_EXTENT`; returns it.
+
+  The message names the mesh, its extent and the ``--scale`` that brings it into range (0.001 for millimetres,
+  0.01 for centimetres, 0.0254 for inches; or the power of ten that undoes a wrong ``--scale``).
+  """
+  extent = float(np.max(mesh.extents))
+  low, high = PLAUSIBLE_EXTENT
+  if low <= extent <= high:
+    return extent
+  original = extent / scale
+  hints = []
+  for factor, unit in ((0.001, 'millimetres'), (0.01, 'centimetres'), (0.0254, 'inches'), (1.0, 'metres')):
+    if factor != scale and low <= original * factor <= high:
+      hints.append(f'--scale {factor:g} if the file is in {unit}')
+  hint = '; '.join(hints[:2]) if hints else f'a --scale that brings it to {low * 1000:g} mm - {high:g} m'
+  size = f'{extent:.3g} m' if extent >= 0.01 else f'{extent * 1000:.3g} mm'
+  warnings.warn(ScaleWarning(
+      f"mesh '{name}': largest extent {size} (with --scale {scale:g}) is implausible for a graspable object "
+      f"(expected {low * 1000:g} mm to {high:g} m); use {hint}"), stacklevel=3)
+  return extent
 
 
 def validate_and_repair(mesh: trimesh.Trimesh, name: str = '<mesh>') -> trimesh.Trimesh:
