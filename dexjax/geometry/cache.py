@@ -159,21 +159,26 @@ def _write_atomic(path: str, key: str, model: ObjectModel) -> None:
 
 def _atomic_write(path: str | os.PathLike[str], suffix: str, write) -> None:
   """Calls ``write(binary file)`` on a temporary file in ``path``'s directory (created if missing), flushes it
-  to disk and moves it over ``path`` with `os.replace`; on any error the temporary file is removed."""
+  to disk and moves it over ``path`` with `os.replace`; on any error the temporary file is removed (the old
+  ``path``, if any, is untouched) and an `OSError` (disk full, permission denied) is re-raised naming ``path``."""
   path = os.fspath(path)
   directory = os.path.dirname(path) or '.'
-  os.makedirs(directory, exist_ok=True)
-  fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix=suffix, dir=directory)
+  tmp = None
   try:
+    os.makedirs(directory, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix=suffix, dir=directory)
     with os.fdopen(fd, 'wb') as f:
       write(f)
       f.flush()
       os.fsync(f.fileno())
     os.replace(tmp, path)
-  except BaseException:
-    if os.path.exists(tmp):
+  except OSError as e:
+    if e.errno is None or e.filename not in (None, tmp, directory):
+      raise
+    raise type(e)(e.errno, e.strerror, path) from e
+  finally:
+    if tmp is not None and os.path.exists(tmp):
       os.remove(tmp)
-    raise
 
 
 def atomic_write_npz(path: str | os.PathLike[str], arrays: dict[str, np.ndarray]) -> None:
