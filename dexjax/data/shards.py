@@ -6,7 +6,8 @@ function of (config, seed, shard index) only: draw its randomness from `shard_se
 the file are identical on every rerun (fixed member order, fixed zip timestamps, canonical JSON meta).
 
 Writes go to ``<shard>.tmp-<pid>`` and are moved into place with `os.replace`, so a killed writer never leaves
-a visible, half-written shard. The run manifest and resuming (``--shard i/N``) live in `dexjax.data.manifest`.
+a visible, half-written shard, and a failed write (disk full) raises an `OSError` naming the shard. The run
+manifest and resuming (``--shard i/N``) live in `dexjax.data.manifest`.
 """
 
 from __future__ import annotations
@@ -214,6 +215,10 @@ def write_shard(path: str | os.PathLike, images: Mapping[str, np.ndarray], rows:
   try:
     _write_npz(tmp, arrays)
     os.replace(tmp, path)
+  except OSError as err:  # disk full, permission denied: name the shard (the temporary file is removed below)
+    if err.errno is None or err.filename not in (None, os.fspath(tmp)):
+      raise
+    raise type(err)(err.errno, err.strerror, os.fspath(path)) from err
   finally:
     tmp.unlink(missing_ok=True)
   return full
