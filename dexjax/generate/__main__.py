@@ -3,11 +3,13 @@
   python -m dexjax.generate --config configs/dexnet4.yaml --out DIR --num-images N
       [--objects SOURCE ...] [--gripper-config FILE] [--camera-config FILE] [--seed S]
       [--shard i/N] [--workers W] [--backend serial|process|ray] [--ray-address ADDR]
-      [--cache-dir DIR] [--no-preview] [--verify] [--json]
+      [--cache-dir DIR] [--no-preview] [--verify] [--overwrite] [--json]
 
 Writes shards, ``manifest.json``, ``config.json`` and ``preview.png`` to DIR, then prints a summary (rows,
 positive rate and failure reasons per gripper, rows per second). Rerun the same command to resume a killed run.
-Exit code 0 on success, 1 when some shards failed (the others are written), 2 for bad input.
+DIR must be new, empty or a run of this command: files it did not write are never replaced (``--overwrite``
+lifts this). Exit code 0 on success, 1 when some shards failed (the others are written), 2 for bad input
+(docs/errors.md).
 """
 
 from __future__ import annotations
@@ -17,10 +19,8 @@ import json
 import os
 import sys
 
-from dexjax.cli import report_bad_input
-from dexjax.config import ConfigError
-from dexjax.data.manifest import parse_shard_assignment
-from dexjax.data.shards import ShardError
+from dexjax.cli import add_overwrite_flag, command
+from dexjax.config import validate_generate_config
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -44,26 +44,30 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--no-preview', action='store_true', help='do not write preview.png')
   p.add_argument('--verify', action='store_true', help='re-read every finished shard before resuming (slow)')
   p.add_argument('--json', action='store_true', help='print the summary as JSON')
+  add_overwrite_flag(p)
   return p
 
 
+@command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
-  from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top (slow imports)
-  from dexjax.generate.pipeline import NoObjectsError  # pylint: disable=g-import-not-at-top
+  if args.workers < 1:
+    raise ValueError(f'--workers: expected an integer >= 1, got {args.workers}')
+  if args.num_images < 1:
+    raise ValueError(f'--num-images: expected an integer >= 1, got {args.num_images}')
+  from dexjax.data.manifest import parse_shard_assignment  # pylint: disable=g-import-not-at-top (slow imports)
+  from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top
   from dexjax.generate.report import format_summary  # pylint: disable=g-import-not-at-top
-  from dexjax.generate.run import generate_dataset  # pylint: disable=g-import-not-at-top
-  try:
-    if args.workers < 1:
-      raise ValueError(f'--workers: expected an integer >= 1, got {args.workers}')
-    assignment = parse_shard_assignment(args.shard)
-    config = load_generate_config(args.config, gripper_config=args.gripper_config,
-                                  camera_config=args.camera_config, objects=args.objects, seed=args.seed)
-    summary = generate_dataset(config, args.out, args.num_images, assignment=assignment, backend=args.backend,
-                               workers=args.workers, ray_address=args.ray_address, cache_dir=args.cache_dir,
-                               progress=not args.json, preview=not args.no_preview, verify=args.verify)
-  except (ConfigError, ShardError, NoObjectsError, ValueError, ImportError, OSError) as e:
-    return report_bad_input(e)
+  from dexjax.generate.run import check_run_dir, generate_dataset  # pylint: disable=g-import-not-at-top
+  assignment = parse_shard_assignment(args.shard)
+  check_run_dir(args.out, overwrite=args.overwrite)  # before the configs: a wrong --out fails at once
+  config = load_generate_config(args.config, gripper_config=args.gripper_config, camera_config=args.camera_config,
+                                objects=args.objects, seed=args.seed)
+  validate_generate_config(config, args.config or 'the default config')  # fields that constrain each other
+  summary = generate_dataset(config, args.out, args.num_images, assignment=assignment, backend=args.backend,
+                             workers=args.workers, ray_address=args.ray_address, cache_dir=args.cache_dir,
+                             progress=not args.json, preview=not args.no_preview, verify=args.verify,
+                             overwrite=args.overwrite)
   if args.json:
     print(json.dumps(summary, indent=1))
   else:

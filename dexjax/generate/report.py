@@ -20,6 +20,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
+from dexjax.cli import PNG_MARK, atomic_path
 from dexjax.data.shards import GRIPPER_NAMES, Shard
 from dexjax.quality.heap_reward import REWARD_FAILURES
 from dexjax.sampling.crops import grasp_crop
@@ -266,7 +267,8 @@ def save_generation_png(path: str | os.PathLike[str], shard: Shard, image_index:
   (radius fx x 0.01 m / grasp_depth) with a tick along the in-plane approach direction; supervisor rows thicker
   and starred. Right: up to ``num_crops`` crops (`select_crop_rows`), ``crop_size`` pixels, each titled with
   gripper, reward and robust probability, the jaw axis (horizontal) or cup (approach tick down) at the centre.
-  An image without rows is drawn without grasps and crops. The PNG is `generation_png_size` pixels.
+  An image without rows is drawn without grasps and crops. The PNG is `generation_png_size` pixels, written
+  atomically and marked as dexjax's picture (`dexjax.cli.is_dexjax_png`).
 
   Returns:
     (K,) int64 indices of the rows shown as crops.
@@ -294,7 +296,8 @@ def save_generation_png(path: str | os.PathLike[str], shard: Shard, image_index:
   positives = int((rows["reward"][own] == 1).sum())
   figure.suptitle(f"{shard.path.name} image {image_index} (heap {heap}): {len(own)} grasps, {positives} positive",
                   fontsize=10)
-  figure.savefig(os.fspath(path), dpi=_DPI, format='png')
+  with atomic_path(path, suffix='.png') as tmp:  # marked as dexjax's picture, so a rerun may replace it
+    figure.savefig(tmp, dpi=_DPI, format='png', metadata={PNG_MARK: 'dexjax.generate.save_generation_png'})
   return chosen
 
 

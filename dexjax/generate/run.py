@@ -4,6 +4,10 @@
 images_per_shard)`` shards; worker i of N (``--shard i/N``) takes the shards with ``index % N == i``. Shards
 already finished in ``out_dir`` (valid file of the same config and seed) are skipped, so rerunning a killed
 run resumes it with no lost or duplicated rows. The resolved config is written to ``out_dir/config.json``.
+
+Before anything is computed or written, `check_run_dir` makes sure the run cannot clobber files it did not write:
+a new run needs a new or empty directory, and a ``config.json`` or ``preview.png`` already there must be this
+command's own (the run's config record; a PNG marked by dexjax), unless ``overwrite``.
 """
 
 from __future__ import annotations
@@ -13,11 +17,13 @@ import functools
 import json
 import math
 import os
+import re
 import time
 from pathlib import Path
 from typing import Any
 
-from dexjax.config import as_dict
+from dexjax.cli import OutputError, check_output_dir, is_dexjax_png
+from dexjax.config import as_dict, validate_generate_config
 from dexjax.data.manifest import open_manifest, pending_shards
 from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
 from dexjax.generate.config import GenerateConfig, fingerprint
@@ -36,6 +42,56 @@ def num_shards(config: GenerateConfig, num_images: int) -> int:
   if num_images < 1:
     raise ValueError(f'--num-images: expected an integer >= 1, got {num_images}')
   return math.ceil(num_images / config.dataset.images_per_shard)
+
+
+# Files a run starting in the same directory at the same moment (another --shard worker) may already have made.
+_STARTING_RUN_FILE = re.compile(r'\..+\.tmp-.*|\.tmp-.*|shard-\d{6}\.npz\.tmp-\d+|manifest\.lock')
+
+
+def _is_run_config(path: Path) -> bool:
+  """True if ``path`` is a ``config.json`` this module wrote: a JSON object of exactly fingerprint and config."""
+  try:
+    data = json.loads(path.read_text(encoding='utf-8'))
+  except (OSError, ValueError):
+    return False
+  return isinstance(data, dict) and set(data) == {'fingerprint', 'config'}
+
+
+def check_run_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False) -> Path:
+  """Checks, before anything is computed or written, that a run may write into ``out_dir``; returns it.
+
+  ``out_dir`` must be a directory or not exist yet, under a writable directory (missing levels are created).
+  A new run (no ``manifest.json``) needs it absent or empty; a directory of a run may also hold other files
+  (they are never written). A ``config.json`` or ``preview.png`` must be the run's own: the config record this
+  module writes, a PNG marked as dexjax's (`dexjax.cli.is_dexjax_png`). With ``overwrite`` the last two rules
+  are lifted. A manifest or shards of another run are refused later (`dexjax.data.ConfigMismatchError`).
+
+  Raises:
+    OutputError: naming ``--out``, the directory and what was expected.
+  """
+  out = check_output_dir(out_dir, option='--out')
+  if overwrite or not out.exists():
+    return out
+  entries = sorted(p.name for p in out.iterdir())
+  mine = {CONFIG_NAME: _is_run_config, PREVIEW_NAME: _is_dexjax_png}
+  for name in entries:
+    if name in mine and not mine[name](out / name):
+      raise OutputError('--out', out, f"holds a '{name}' this command did not write; expected this run's own "
+                                      f'{name} (move the file away, choose another --out, or pass --overwrite)')
+  if MANIFEST_NAME not in entries:
+    others = [n for n in entries if not _STARTING_RUN_FILE.fullmatch(n)]
+    if others:
+      shown = ', '.join(repr(n) for n in others[:3]) + (', ...' if len(others) > 3 else '')
+      raise OutputError('--out', out, f'is not empty ({shown}) and holds no dataset run (no {MANIFEST_NAME}); '
+                                      'expected a new or empty directory, or a run to resume (or pass --overwrite)')
+  return out
+
+
+def _is_dexjax_png(path: Path) -> bool:
+  try:
+    return is_dexjax_png(path)
+  except (OSError, ValueError):
+    return False
 
 
 def _write_config(out_dir: Path, config: GenerateConfig) -> None:
@@ -58,7 +114,7 @@ def warm_caches(config: GenerateConfig, cache_dir: str | None = None, progress: 
 def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], num_images: int, *,
                      assignment: tuple[int, int] = (0, 1), backend: str = 'serial', workers: int = 1,
                      ray_address: str | None = None, cache_dir: str | None = None, progress: bool = True,
-                     preview: bool = True, verify: bool = False) -> dict[str, Any]:
+                     preview: bool = True, verify: bool = False, overwrite: bool = False) -> dict[str, Any]:
   """Generates (or resumes) a dataset in ``out_dir`` and returns the run's summary (plain JSON).
 
   Args:
@@ -74,6 +130,8 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
     preview: write ``preview.png`` (first image of the first finished shard: grasps coloured by reward, crops).
     verify: re-read every finished shard before resuming (default: trust manifest entries whose file size
       matches, see `dexjax.data.pending_shards`).
+    overwrite: allow a non-empty ``out_dir`` without a run and replacing a ``config.json`` / ``preview.png``
+      this module did not write (`check_run_dir`).
 
   Returns:
     ``rows``, ``positive_rate`` and per-gripper counts (rows, positives, positive rate, supervisor rows,
@@ -86,10 +144,12 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
     NoObjectsError: no object of ``config.objects.sources`` could be used (checked before a new run writes
       anything; a task's own errors are reported per shard in ``shards.failed`` instead).
     ValueError: ``num_images < 1``.
+    OutputError: ``out_dir`` cannot be written, or holds files this run did not write (`check_run_dir`).
     dexjax.data.ConfigMismatchError: ``out_dir`` holds another run.
   """
-  out = Path(out_dir)
   total = num_shards(config, num_images)
+  validate_generate_config(config, '<GenerateConfig>')
+  out = check_run_dir(out_dir, overwrite=overwrite)
   parallel = backend != 'serial' and workers > 1
   if parallel:
     config = dataclasses.replace(config, settle=config.settle.replace(nthread=1))  # one core per worker
@@ -155,4 +215,4 @@ def _preview(out: Path, total: int, assignment: tuple[int, int]) -> str | None:
   return None
 
 
-__all__ = ['CONFIG_NAME', 'PREVIEW_NAME', 'generate_dataset', 'num_shards', 'warm_caches']
+__all__ = ['CONFIG_NAME', 'PREVIEW_NAME', 'check_run_dir', 'generate_dataset', 'num_shards', 'warm_caches']
