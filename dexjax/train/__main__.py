@@ -7,8 +7,10 @@
 
 Writes OUT/metrics.jsonl (one JSON object per epoch and gripper), OUT/curves.png, OUT/<gripper>/best (the best
 model by validation, dexjax.models.load) and OUT/<gripper>/checkpoints (resumable with --resume). OUT defaults
-to runs/<config name>-<date-time>; --resume without --out continues the newest such run.
-Exit code 0 on success, 2 for bad input.
+to runs/<config name>-<date-time>; --resume without --out continues the newest such run. A new run needs a new
+or empty OUT; --resume needs an earlier run there. A training split that cannot teach anything (one label only,
+less than a batch) is refused before anything is written. Exit code 0 on success, 1 when generating the quick-start
+dataset failed, 2 for bad input (docs/errors.md).
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ import json
 import sys
 import time
 from pathlib import Path
+
+from dexjax.cli import command, report_failure
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -54,33 +58,33 @@ def _out_dir(args, name: str) -> Path:
   return Path('runs') / f'{name}-{time.strftime("%Y%m%d-%H%M%S")}'
 
 
+@command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
-  from dexjax.cli import report_bad_input  # pylint: disable=g-import-not-at-top (slow imports after parsing)
-  from dexjax.config import ConfigError  # pylint: disable=g-import-not-at-top
-  from dexjax.data.shards import ShardError  # pylint: disable=g-import-not-at-top
-  from dexjax.train import distributed  # pylint: disable=g-import-not-at-top
+  from dexjax.train import distributed  # pylint: disable=g-import-not-at-top (slow imports after parsing)
   from dexjax.train.config import load_train_config  # pylint: disable=g-import-not-at-top
-  from dexjax.train.run import quickstart_dataset, train_run  # pylint: disable=g-import-not-at-top
+  from dexjax.train.run import check_run_dir, quickstart_dataset, train_run  # pylint: disable=g-import-not-at-top
   log = (lambda *a, **k: print(*a, file=sys.stderr, **k)) if args.json else print
+  if args.distributed:
+    distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+  config = load_train_config(args.config)
+  if args.grippers:
+    config = dataclasses.replace(config, grippers=tuple(dict.fromkeys(args.grippers)))
+  if args.epochs is not None:
+    config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, epochs=args.epochs))
+  if args.seed is not None:
+    config = dataclasses.replace(config, seed=args.seed)
+  config = config.validate('command line')
+  name = Path(args.config).stem if args.config else 'quickstart'
+  out = _out_dir(args, name)
+  if distributed.is_main_process():
+    check_run_dir(out, resume=args.resume)  # before the (long) quick-start dataset: a wrong --out fails at once
   try:
-    if args.distributed:
-      distributed.initialize(args.coordinator, args.num_processes, args.process_id)
-    config = load_train_config(args.config)
-    if args.grippers:
-      config = dataclasses.replace(config, grippers=tuple(dict.fromkeys(args.grippers)))
-    if args.epochs is not None:
-      config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, epochs=args.epochs))
-    if args.seed is not None:
-      config = dataclasses.replace(config, seed=args.seed)
-    config = config.validate('command line')
-    name = Path(args.config).stem if args.config else 'quickstart'
-    out = _out_dir(args, name)
     data = args.data or quickstart_dataset(config, args.cache_dir, progress=not args.no_progress, log=log)
-    log(f'training into {out}')
-    summary = train_run(config, data, out, resume=args.resume, progress=not args.no_progress, log=log)
-  except (ConfigError, ShardError, ValueError, OSError) as e:
-    return report_bad_input(e)
+  except RuntimeError as e:  # some of its shards failed: not bad input, rerun to retry them
+    return report_failure(e)
+  log(f'training into {out}')
+  summary = train_run(config, data, out, resume=args.resume, progress=not args.no_progress, log=log)
   if args.json:
     print(json.dumps(summary, indent=1))
   return 0

@@ -58,6 +58,23 @@ def _steps_per_epoch(stats: GripperStats, config: TrainConfig) -> int:
   return max(1, stats.examples_per_epoch(config.loop.class_balance) // config.loop.batch_size)
 
 
+def check_trainable(gripper: str, stats: GripperStats, config: TrainConfig, data_dir: str | os.PathLike = '') -> None:
+  """Raises ValueError when ``gripper``'s training split cannot teach the network anything: fewer examples per
+  epoch than one batch (no step would be taken), or no positive or no negative row (nothing to tell apart)."""
+  where = f'{os.fspath(data_dir)}: ' if data_dir else ''
+  examples = stats.examples_per_epoch(config.loop.class_balance)
+  if examples < config.loop.batch_size:
+    raise ValueError(f'{where}{gripper}: {examples} training examples per epoch, fewer than one batch: no step '
+                     f'would be taken; expected at least loop.batch_size = {config.loop.batch_size} (generate more '
+                     f'images, or lower loop.batch_size)')
+  rows, positives = stats.train_rows, stats.train_positives
+  if positives == 0 or positives == rows:
+    missing = 'positive (reward 1)' if positives == 0 else 'negative (reward 0)'
+    raise ValueError(f'{where}{gripper}: the training split has {rows} rows and no {missing} one: a GQ-CNN cannot '
+                     f'learn to tell grasps apart; expected both labels (generate more images, or train other '
+                     f'--grippers)')
+
+
 def _better(metric: str, value: float | None, best: float | None) -> bool:
   if value is None:
     return False
@@ -87,8 +104,10 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
 
   Raises:
     FileExistsError: checkpoints exist and ``resume`` is False.
+    ValueError: the training split cannot teach anything (`check_trainable`).
     Interrupted: ``stop_after_steps`` was reached.
   """
+  check_trainable(gripper, stats, config, data_dir)
   out, gripper_dir = Path(out_dir), Path(out_dir) / gripper
   mesh = data_mesh()
   check_batch_size(config.loop.batch_size, mesh)
@@ -177,4 +196,4 @@ def final_state_params(out_dir: str | os.PathLike, config: TrainConfig, gripper:
   return _host(restored[0].params)
 
 
-__all__ = ['Interrupted', 'final_state_params', 'sgd_step', 'train_gripper']
+__all__ = ['Interrupted', 'check_trainable', 'final_state_params', 'sgd_step', 'train_gripper']

@@ -1,6 +1,11 @@
 """A whole training run (the library side of ``python -m dexjax.train``): the dataset (given, or the built-in
 quick-start set generated once and cached), the training-split statistics, one GQ-CNN per gripper, and the
-run's files (``config.yaml``, ``stats.json``, ``summary.json``, plus those of `dexjax.train.loop`)."""
+run's files (``config.yaml``, ``stats.json``, ``summary.json``, plus those of `dexjax.train.loop`).
+
+Before anything is written, `check_run_dir` checks the run directory (a new run: a new or empty directory;
+``resume``: an earlier run, recognised by its ``config.yaml``) and `dexjax.train.check_trainable` each gripper's
+training split (both labels present, at least one batch per epoch), so a run that cannot learn anything fails
+without leaving a "best" model behind."""
 
 from __future__ import annotations
 
@@ -13,13 +18,15 @@ from typing import Any
 
 import yaml
 
+from dexjax.cli import OutputError, check_output_dir
+from dexjax.config import ConfigError
 from dexjax.data.loader import list_shards
 from dexjax.geometry.cache import atomic_write_text, default_cache_dir
 from dexjax.train.batches import GripperStats, dataset_stats
-from dexjax.train.checkpoint import CHECKPOINT_DIR, normalization_to_json
+from dexjax.train.checkpoint import normalization_to_json
 from dexjax.train.config import TrainConfig, config_to_dict, train_config_from_dict
 from dexjax.train.distributed import is_main_process
-from dexjax.train.loop import train_gripper
+from dexjax.train.loop import check_trainable, train_gripper
 from dexjax.train.report import format_summary
 
 CONFIG_FILE = 'config.yaml'
@@ -45,7 +52,7 @@ def quickstart_dataset(config: TrainConfig, cache_dir: str | os.PathLike | None 
       f'(once; later runs reuse it)')
   summary = generate_dataset(gen, out, images, backend='process' if config.quickstart.workers > 1 else 'serial',
                              workers=config.quickstart.workers, cache_dir=os.fspath(cache_dir) if cache_dir else None,
-                             progress=progress, preview=True)
+                             progress=progress, preview=True, overwrite=True)  # dexjax's own cache directory
   failed = summary['shards']['failed']
   if failed:
     raise RuntimeError(f'{out}: {len(failed)} shards failed ({next(iter(failed.values())).splitlines()[0]}); '
@@ -54,13 +61,45 @@ def quickstart_dataset(config: TrainConfig, cache_dir: str | os.PathLike | None 
   return out
 
 
+def check_run_dir(out_dir: str | os.PathLike, *, resume: bool = False) -> Path:
+  """Checks, before anything is written, that a run may use ``out_dir``; returns it as a `Path`.
+
+  A new run needs a new or empty directory under a writable one (an earlier run there: pass ``resume``; other
+  files: choose another directory). ``resume`` needs an earlier run: a directory with a readable ``config.yaml``
+  (a mistyped path fails instead of silently starting afresh).
+
+  Raises:
+    OutputError: naming ``--out``, the directory and what was expected.
+  """
+  out = check_output_dir(out_dir, option='--out')
+  config = out / CONFIG_FILE
+  if resume:
+    if not config.is_file():
+      raise OutputError('--out', out, f'is not a training run to resume (no {CONFIG_FILE}); expected the directory '
+                                      'of an earlier run (check the path), or start a new run without --resume')
+    return out
+  if out.exists() and any(out.iterdir()):
+    if config.is_file():
+      raise OutputError('--out', out, 'holds an earlier run; pass --resume to continue it, or choose another --out')
+    raise OutputError('--out', out, 'is not empty and holds no training run; expected a new or empty directory '
+                                    '(choose another --out)')
+  return out
+
+
 def _check_resume_config(out: Path, config: TrainConfig) -> None:
   """A resumed run must keep its config (only ``loop.epochs`` may change)."""
   path = out / CONFIG_FILE
   if not path.exists():
     return
-  with open(path) as f:
-    saved = train_config_from_dict(yaml.safe_load(f), os.fspath(path))
+  try:
+    with open(path, encoding='utf-8') as f:
+      data = yaml.safe_load(f)
+  except (UnicodeDecodeError, yaml.YAMLError) as e:
+    raise ConfigError(os.fspath(path), '', f'not a readable run config ({type(e).__name__}); expected the '
+                                           'config.yaml this run wrote') from None
+  if not isinstance(data, dict):
+    raise ConfigError(os.fspath(path), '', 'expected the mapping of the config.yaml this run wrote')
+  saved = train_config_from_dict(data, os.fspath(path))
   if dataclasses.replace(saved, loop=dataclasses.replace(saved.loop, epochs=config.loop.epochs)) != config:
     raise ValueError(f'{path}: the run was started with another config; resume it with the same --config (only '
                      f'loop.epochs may change), or train into another --out')
@@ -79,25 +118,24 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
 
   Raises:
     FileNotFoundError: ``data_dir`` holds no shards.
-    FileExistsError: ``out_dir`` holds checkpoints and ``resume`` is False.
-    ValueError: a gripper has no training rows; a resumed run's config differs.
+    OutputError: ``out_dir`` is not a new or empty directory (a new run) or not an earlier run (``resume``).
+    ValueError: a gripper's training split cannot teach anything (`dexjax.train.check_trainable`: one label
+      only, or less than a batch); a resumed run's config differs.
   """
   out, start = Path(out_dir), time.perf_counter()
-  if not list_shards(data_dir):
+  if not os.path.isdir(data_dir) or not list_shards(data_dir):
     raise FileNotFoundError(f'{os.fspath(data_dir)}: no dataset shards (shard-*.npz); make one with python -m '
                             f'dexjax.generate, or leave out --data for the built-in quick-start set')
+  if is_main_process():
+    check_run_dir(out, resume=resume)
   if resume:
     _check_resume_config(out, config)
-  else:
-    earlier = [g for g in config.grippers if (out / g / CHECKPOINT_DIR).is_dir()]
-    if earlier:
-      raise FileExistsError(f'{out}: holds checkpoints of an earlier run ({", ".join(earlier)}); pass --resume to '
-                            f'continue it, or choose another --out')
+  stats = dataset_stats(data_dir, config)
+  for gripper in config.grippers:
+    check_trainable(gripper, stats[gripper], config, data_dir)
   if is_main_process():
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / CONFIG_FILE, yaml.safe_dump(config_to_dict(config), sort_keys=False))
-  stats = dataset_stats(data_dir, config)
-  if is_main_process():
     atomic_write_text(out / STATS_FILE, json.dumps(_stats_json(stats), indent=1) + '\n')
   for gripper, s in stats.items():
     log(f'{gripper}: {s.train_rows} training rows, {100 * s.positive_rate:.1f} % positive')
@@ -113,4 +151,4 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
   return summary
 
 
-__all__ = ['CONFIG_FILE', 'STATS_FILE', 'SUMMARY_FILE', 'quickstart_dataset', 'train_run']
+__all__ = ['CONFIG_FILE', 'STATS_FILE', 'SUMMARY_FILE', 'check_run_dir', 'quickstart_dataset', 'train_run']
