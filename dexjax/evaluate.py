@@ -6,7 +6,7 @@ CKPT is a training run directory (every gripper trained in it), ``RUN/<gripper>`
 The data may come from other objects than the training set. ``--split all`` (the default) scores every row;
 ``train`` / ``val`` use the run's split rule (from ``RUN/config.yaml`` when present, else the default). Prints
 ``{"checkpoint", "data", "split", "grippers": {gripper: {accuracy, balanced_accuracy, precision, recall,
-average_precision, loss, examples, positives, ...}}}``. Exit code 0, or 2 for bad input.
+average_precision, loss, examples, positives, ...}}}``. Exit code 0, or 2 for bad input (docs/errors.md).
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ import json
 import os
 import sys
 from pathlib import Path
+
+from dexjax.cli import command
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -40,33 +42,29 @@ def _run_config(checkpoint: Path):
   return TrainConfig()
 
 
+@command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
-  from dexjax.cli import report_bad_input  # pylint: disable=g-import-not-at-top (slow imports after parsing)
-  from dexjax.config import ConfigError  # pylint: disable=g-import-not-at-top
-  from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top
-  from dexjax.data.shards import GRIPPER_NAMES, ShardError  # pylint: disable=g-import-not-at-top
+  from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top (slow imports after parsing)
+  from dexjax.data.shards import GRIPPER_NAMES  # pylint: disable=g-import-not-at-top
   from dexjax.models.saved import load  # pylint: disable=g-import-not-at-top
   from dexjax.train.validation import evaluate_model  # pylint: disable=g-import-not-at-top
   checkpoint = Path(args.checkpoint).absolute()
-  try:
-    if args.batch_size < 1:
-      raise ValueError(f'--batch-size: expected an integer >= 1, got {args.batch_size}')
-    if not list_shards(args.data):
-      raise FileNotFoundError(f'{args.data}: no dataset shards (shard-*.npz)')
-    config = _run_config(checkpoint)
-    config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, eval_batch_size=args.batch_size))
-    run_grippers = [g for g in GRIPPER_NAMES if (checkpoint / g).is_dir()]
-    if run_grippers:
-      models = [load(checkpoint, g) for g in run_grippers if args.gripper in (None, g)]
-    else:
-      models = [load(checkpoint, args.gripper)]
-    if not models:
-      raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {run_grippers})')
-    results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress)
-               for m in models}
-  except (ConfigError, ShardError, ValueError, OSError) as e:
-    return report_bad_input(e)
+  if args.batch_size < 1:
+    raise ValueError(f'--batch-size: expected an integer >= 1, got {args.batch_size}')
+  if not os.path.isdir(args.data) or not list_shards(args.data):
+    raise FileNotFoundError(f'{args.data}: no dataset shards (shard-*.npz)')
+  config = _run_config(checkpoint)
+  config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, eval_batch_size=args.batch_size))
+  run_grippers = [g for g in GRIPPER_NAMES if (checkpoint / g).is_dir()]
+  if run_grippers:
+    models = [load(checkpoint, g) for g in run_grippers if args.gripper in (None, g)]
+  else:
+    models = [load(checkpoint, args.gripper)]
+  if not models:
+    raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {run_grippers})')
+  results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress)
+             for m in models}
   print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': os.fspath(Path(args.data).absolute()),
                     'split': args.split, 'grippers': results}, indent=1))
   return 0

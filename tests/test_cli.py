@@ -58,18 +58,18 @@ def test_bad_grasp_file_names_file_index_and_field(tmp_path, capsys):
   src = tmp_path / "bad.json"
   src.write_text(json.dumps({"grasps": [{"gripper": "suction", "center": [0, 0, 0.02], "approach": [0, 0, -1]},
                                         {"gripper": "suction", "center": [0, "x", 0], "approach": [0, 0, -1]}]}))
-  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 1
+  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 2
   err = capsys.readouterr().err
   assert "bad.json" in err and "grasps[1]" in err and "'center'" in err
   src.write_text(json.dumps({"grasps": [{"gripper": "claw", "center": [0, 0, 0], "approach": [0, 0, 1]}]}))
-  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 1
+  assert main(["builtin:cube", "--grid-size", "64", "--grasps", str(src), "--out", str(tmp_path / "o.json")]) == 2
   assert "'gripper'" in capsys.readouterr().err
 
 
 def test_broken_mesh_gives_a_clear_error(tmp_path, capsys):
   bad = tmp_path / "empty.obj"
   bad.write_text("")
-  assert main([str(bad), "--gripper", "suction", "--out", str(tmp_path / "o.json")]) == 1
+  assert main([str(bad), "--gripper", "suction", "--out", str(tmp_path / "o.json")]) == 2
   assert "empty.obj" in capsys.readouterr().err
 
 
@@ -81,7 +81,7 @@ def test_module_entry_point_runs(tmp_path, cache_dir):
                       str(tmp_path / "o.json")],
                      capture_output=True, text=True, env={**__import__("os").environ, "DEXJAX_CACHE": str(cache_dir)},
                      timeout=300)
-  assert r.returncode == 1 and "empty.obj" in r.stderr, r.stderr
+  assert r.returncode == 2 and "empty.obj" in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
 def test_config_file_sets_gripper_and_perturbations(tmp_path):

@@ -5,10 +5,12 @@
   python -m dexjax.objects --preview OUT.png [--per-level N] [--seed S]
 
 ``check`` loads every mesh file in DIR (OBJ, STL, PLY, GLB, OFF) and reports each as loaded or rejected
-with the reason; exit code 0 when at least one object loaded, 1 when none did, 2 for usage errors.
+with the reason (and warns about implausible sizes, e.g. a file in millimetres without ``--scale 0.001``); exit
+code 0 when at least one object loaded, 1 when none did, 2 for bad input (docs/errors.md).
 ``--json`` prints ``{"loaded": [names], "rejected": [{"file": ..., "reason": ...}]}`` to stdout.
 ``hulls`` prints the convex collision pieces of one mesh (a file or ``builtin:NAME``).
-``--preview`` draws a contact sheet of procedural objects at difficulty levels 1-3.
+``--preview`` draws a contact sheet of procedural objects at difficulty levels 1-3 (OUT.png is checked before
+any drawing; an existing file is only replaced if this command drew it, or with ``--overwrite``).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import sys
 
 import trimesh
 
-from dexjax.geometry.mesh_io import MeshError
+from dexjax.cli import add_overwrite_flag, check_output_file, command, is_dexjax_png, stamp_png
 from dexjax.objects.builtin import resolve_mesh
 from dexjax.objects.collision import cached_collision_hulls
 from dexjax.objects.folder import FolderReport, load_mesh_folder
@@ -32,6 +34,7 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--preview', metavar='OUT.png', help='write a contact sheet of procedural objects (levels 1-3)')
   p.add_argument('--per-level', type=int, metavar='N', help='objects per difficulty level in the preview')
   p.add_argument('--seed', type=int, metavar='S', help='random seed of the preview')
+  add_overwrite_flag(p)
   sub = p.add_subparsers(dest='command', metavar='{check,hulls}')
   check = sub.add_parser('check', help='load a folder of meshes and report each file')
   check.add_argument('dir', metavar='DIR', help='folder of mesh files')
@@ -47,11 +50,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _check(args: argparse.Namespace) -> int:
-  try:
-    report = load_mesh_folder(args.dir, scale=args.scale, recursive=args.recursive)
-  except (OSError, ValueError) as e:
-    print(f'error: {e}', file=sys.stderr)
-    return 2
+  report = load_mesh_folder(args.dir, scale=args.scale, recursive=args.recursive)
   if args.json:
     print(json.dumps(report.to_json()))
   else:
@@ -91,15 +90,8 @@ def _describe(mesh: trimesh.Trimesh) -> str:
 
 
 def _hulls(args: argparse.Namespace) -> int:
-  try:
-    mesh, name = resolve_mesh(args.mesh, scale=args.scale)
-    hulls = cached_collision_hulls(mesh, max_hulls=args.max_hulls, max_vertices=args.max_vertices)
-  except (MeshError, OSError) as e:
-    print(f'error: {e}', file=sys.stderr)
-    return 1
-  except ValueError as e:
-    print(f'error: {e}', file=sys.stderr)
-    return 2
+  mesh, name = resolve_mesh(args.mesh, scale=args.scale)
+  hulls = cached_collision_hulls(mesh, max_hulls=args.max_hulls, max_vertices=args.max_vertices)
   pieces = [trimesh.convex.convex_hull(h) for h in hulls]
   for i, piece in enumerate(pieces):
     print(f'hull {i}: {len(hulls[i])} vertices, {piece.volume * 1e6:.2f} cm^3')
@@ -110,35 +102,33 @@ def _hulls(args: argparse.Namespace) -> int:
 
 
 def _preview(args: argparse.Namespace) -> int:
+  if args.per_level is not None and args.per_level <= 0:
+    raise ValueError(f'--per-level: expected an integer >= 1, got {args.per_level}')
+  if args.seed is not None and args.seed < 0:
+    raise ValueError(f'--seed: expected an integer >= 0, got {args.seed}')
+  out = check_output_file(args.preview, option='--preview', owned=is_dexjax_png, overwrite=args.overwrite)
   from dexjax.objects.preview import save_contact_sheet  # Imported lazily: pulls in the generator.
   kwargs = {k: v for k, v in (('per_level', args.per_level), ('seed', args.seed)) if v is not None}
-  try:
-    save_contact_sheet(args.preview, levels=(1, 2, 3), **kwargs)
-  except OSError as e:
-    print(f'error: cannot write {args.preview}: {e}', file=sys.stderr)
-    return 1
+  save_contact_sheet(args.preview, levels=(1, 2, 3), **kwargs)
+  stamp_png(out, 'python -m dexjax.objects --preview')
   print(f'wrote {args.preview}')
   return 0
 
 
+@command
 def main(argv: list[str] | None = None) -> int:
   parser = _parser()
   args = parser.parse_args(argv)
   if args.preview and args.command:
-    print(f'error: --preview cannot be combined with the {args.command!r} command', file=sys.stderr)
-    return 2
+    raise ValueError(f'--preview cannot be combined with the {args.command!r} command')
   if args.command == 'check':
     return _check(args)
   if args.command == 'hulls':
     return _hulls(args)
   if args.preview:
-    if (args.per_level is not None and args.per_level <= 0):
-      print(f'error: --per-level: expected an integer >= 1, got {args.per_level}', file=sys.stderr)
-      return 2
     return _preview(args)
   parser.print_usage(sys.stderr)
-  print('error: give a command (check, hulls) or --preview OUT.png', file=sys.stderr)
-  return 2
+  raise ValueError('give a command (check, hulls) or --preview OUT.png')
 
 
 if __name__ == '__main__':

@@ -3,7 +3,9 @@
   python -m dexjax.quality MESH --gripper parallel_jaw|suction --num-grasps N --seed S --out OUT.json
   python -m dexjax.quality MESH --grasps IN.json --seed S --out OUT.json
 
-MESH is a mesh file (OBJ, STL, PLY, GLB, OFF) or a built-in object such as ``builtin:box``.
+MESH is a mesh file (OBJ, STL, PLY, GLB, OFF) or a built-in object such as ``builtin:box``. Exit code 0 on
+success, 1 when no valid grasp could be sampled (nothing is written), 2 for bad input (docs/errors.md); OUT is
+checked before any computing and an existing file is only replaced if it is an earlier report (or --overwrite).
 """
 
 from __future__ import annotations
@@ -11,17 +13,20 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 import time
 
 import jax
 
-from dexjax.config import ConfigError
-from dexjax.geometry.mesh_io import MeshError
+from dexjax.cli import FAILURE_EXIT, add_overwrite_flag, atomic_write, check_output_file, command, owned_json
 from dexjax.objects import load_object_model
-from dexjax.quality.grasp_json import GraspFileError
+from dexjax.quality.grasp_json import GraspFileError, load_grasp_json
 from dexjax.quality.report import (ReportSettings, evaluate_report, load_settings, object_summary,
                                    read_grasp_file, report_parameters, sample_grasps)
+
+#: Top-level keys of a report: an existing file with all of them is this command's own output (replaced freely).
+REPORT_KEYS = ('object', 'parameters', 'grasps')
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -33,7 +38,8 @@ def _parser() -> argparse.ArgumentParser:
   src.add_argument("--grasps", help="JSON file of grasps to evaluate instead of sampling")
   p.add_argument("--num-grasps", type=int, default=20, help="grasps to sample (default 20)")
   p.add_argument("--seed", type=int, default=0)
-  p.add_argument("--out", required=True, help="output JSON path")
+  p.add_argument("--out", required=True, help="output JSON path (its directory must exist)")
+  add_overwrite_flag(p)
   p.add_argument("--scale", type=float, default=1.0, help="mesh unit scale, e.g. 0.001 for millimetres")
   p.add_argument("--grid-size", type=int, default=100,
                  help="signed distance grid resolution per axis (default 100, as Dex-Net)")
@@ -45,47 +51,50 @@ def _parser() -> argparse.ArgumentParser:
   return p
 
 
+def _check_arguments(args: argparse.Namespace) -> None:
+  """Raises ValueError naming the option and the expected value."""
+  checks = [("--grid-size", args.grid_size >= 16, "an integer >= 16", args.grid_size),
+            ("--num-grasps", args.num_grasps >= 1, "an integer >= 1", args.num_grasps),
+            ("--samples", args.samples is None or args.samples >= 1, "an integer >= 1", args.samples),
+            ("--threshold", args.threshold is None or 0.0 <= args.threshold <= 1.0, "a probability in [0, 1]",
+             args.threshold),
+            ("--scale", math.isfinite(args.scale) and args.scale > 0, "a finite number > 0", args.scale)]
+  for option, ok, expected, value in checks:
+    if not ok:
+      raise ValueError(f"{option}: expected {expected}, got {value}")
+
+
+@command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
-  if args.grid_size < 16:
-    print(f"error: --grid-size must be at least 16, got {args.grid_size}", file=sys.stderr)
-    return 2
-  if args.num_grasps <= 0 or (args.samples is not None and args.samples <= 0) or (
-      args.threshold is not None and not 0.0 <= args.threshold <= 1.0):
-    print("error: --num-grasps and --samples must be positive and --threshold within [0, 1]", file=sys.stderr)
-    return 2
-  try:
-    settings = load_settings(args.config) if args.config else ReportSettings()
-  except ConfigError as e:
-    print(f"error: {e}", file=sys.stderr)
-    return 2
+  _check_arguments(args)
+  out_path = check_output_file(args.out, owned=owned_json(*REPORT_KEYS), overwrite=args.overwrite)
+  settings = load_settings(args.config) if args.config else ReportSettings()
   overrides = {k: v for k, v in (("num_samples", args.samples), ("threshold", args.threshold)) if v is not None}
   settings = dataclasses.replace(settings, **overrides)
-  try:
-    model = load_object_model(args.mesh, scale=args.scale, grid_size=args.grid_size)
-    key = jax.random.key(args.seed)
-    start = time.perf_counter()
-    if args.grasps:
-      with open(args.grasps) as f:
-        try:
-          data = json.load(f)
-        except json.JSONDecodeError as e:
-          raise GraspFileError(f"{args.grasps}: not valid JSON ({e})") from None
-      grasps = read_grasp_file(data, args.grasps, settings)
-    else:
-      grasps = sample_grasps(jax.random.fold_in(key, 1), model, args.gripper, args.num_grasps, settings)
-      if len(grasps) < args.num_grasps:
-        print(f"warning: only {len(grasps)} of {args.num_grasps} sampled {args.gripper} grasps were valid",
-              file=sys.stderr)
-    records = evaluate_report(jax.random.fold_in(key, 2), model, grasps, settings)
-  except (MeshError, GraspFileError, OSError, ValueError) as e:
-    print(f"error: {e}", file=sys.stderr)
-    return 1
-  grippers = sorted({g for g, _ in grasps}) or ([args.gripper] if args.gripper else [])
-  out = {"object": object_summary(model, args.mesh), "parameters": report_parameters(settings, args.seed, grippers),
-         "grasps": records}
-  with open(args.out, "w") as f:
-    json.dump(out, f, indent=1)
+  grasps = None
+  if args.grasps:
+    grasps = read_grasp_file(load_grasp_json(args.grasps), args.grasps, settings)
+    if not grasps:
+      raise GraspFileError(f"{args.grasps}: 'grasps' is empty; expected at least one grasp")
+  model = load_object_model(args.mesh, scale=args.scale, grid_size=args.grid_size)
+  key = jax.random.key(args.seed)
+  start = time.perf_counter()
+  if grasps is None:
+    grasps = sample_grasps(jax.random.fold_in(key, 1), model, args.gripper, args.num_grasps, settings)
+    if not grasps:
+      extent = float((model.bounds[1] - model.bounds[0]).max())
+      print(f"error: no valid {args.gripper} grasp found on {args.mesh} (largest extent {extent:.3g} m); nothing "
+            f"written to {args.out}", file=sys.stderr)
+      return FAILURE_EXIT
+    if len(grasps) < args.num_grasps:
+      print(f"warning: only {len(grasps)} of {args.num_grasps} sampled {args.gripper} grasps were valid",
+            file=sys.stderr)
+  records = evaluate_report(jax.random.fold_in(key, 2), model, grasps, settings)
+  grippers = sorted({g for g, _ in grasps})
+  report = {"object": object_summary(model, args.mesh), "parameters": report_parameters(settings, args.seed, grippers),
+            "grasps": records}
+  atomic_write(out_path, lambda f: f.write(json.dumps(report, indent=1).encode("utf-8")))
   robust = sum(r["robust"] for r in records)
   print(f"{len(records)} grasps on {args.mesh}: {robust} robust (p > {settings.threshold}); "
         f"{time.perf_counter() - start:.1f} s; wrote {args.out}")

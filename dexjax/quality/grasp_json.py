@@ -14,7 +14,9 @@ axis. Every problem is reported with the file, the grasp index, the field and wh
 
 from __future__ import annotations
 
+import json
 import math
+import os
 from typing import Any
 
 import numpy as np
@@ -44,6 +46,23 @@ def _vector(entry: dict, field: str, where: str, *, unit: bool) -> np.ndarray:
       raise GraspFileError(f"{where}: field '{field}' is the zero vector, expected a unit direction")
     arr = arr / norm
   return arr
+
+
+def load_grasp_json(path: str | os.PathLike[str]) -> Any:
+  """The decoded JSON document of the grasp file ``path`` (validate it with `parse_grasps`).
+
+  Raises:
+    GraspFileError: the file is not UTF-8 text or not valid JSON (naming the file).
+    OSError: the file cannot be read (missing, a directory, no permission).
+  """
+  name = os.fspath(path)
+  try:
+    with open(name, encoding="utf-8") as f:
+      return json.load(f)
+  except UnicodeDecodeError as e:
+    raise GraspFileError(f"{name}: not a text file (byte {e.start} is not UTF-8); expected grasp JSON") from None
+  except json.JSONDecodeError as e:
+    raise GraspFileError(f"{name}: not valid JSON ({e}); expected {{\"grasps\": [...]}}") from None
 
 
 def parse_grasps(data: Any, source: str, *, default_width: float) -> list[tuple[str, dict[str, np.ndarray]]]:

@@ -9,6 +9,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from dexjax.cli import PNG_MARK, atomic_path
 from dexjax.render.rendering import BIN_LABEL, INVALID_LABEL, DepthImage
 
 _DPI = 100
@@ -24,7 +25,8 @@ def mask_colours(mask: np.ndarray) -> np.ndarray:
 
 
 def save_depth_png(path: str | os.PathLike[str], image: DepthImage, *, title: str | None = None) -> None:
-  """Writes the depth image (viridis, NaN pixels red, colour bar in metres) and the mask side by side.
+  """Writes the depth image (viridis, NaN pixels red, colour bar in metres) and the mask side by side, marked
+  as dexjax's picture (`dexjax.cli.is_dexjax_png`), atomically.
 
   Args:
     path: output PNG file.
@@ -46,6 +48,7 @@ def save_depth_png(path: str | os.PathLike[str], image: DepthImage, *, title: st
     axes.set_axis_off()
   if title:
     figure.suptitle(title, fontsize=10)
-  figure.savefig(os.fspath(path), dpi=_DPI, format='png')
+  with atomic_path(path, suffix='.png') as tmp:
+    figure.savefig(tmp, dpi=_DPI, format='png', metadata={PNG_MARK: 'dexjax.render.save_depth_png'})
 
 

@@ -7,9 +7,11 @@
 ``settle`` loads an object set (``builtin:all``, ``procedural:L2/0:100``, mesh files, folders; see
 `dexjax.objects.load_object_set`), draws B heaps from the Dex-Net 4.0 heap distribution, settles them and
 prints a summary (``--json``: one JSON object). ``--out`` saves the final poses, flags and object names as
-``.npz``. Exit code 0 when every heap settled inside the bin, 1 when some object was flagged (left the bin,
-never settled) or rejected, 2 for usage errors or when no object loaded.
-``preview`` draws a PNG of settled heaps, one row per procedural difficulty level.
+``.npz`` (exactly at that path). Exit code 0 when every heap settled inside the bin, 1 when some object was
+flagged (left the bin, never settled) or rejected, 2 for bad input or when fewer objects loaded than a heap
+needs (docs/errors.md). ``preview`` draws a PNG of settled heaps, one row per procedural difficulty level.
+Outputs are checked before any computing; an existing file is only replaced if this command wrote it, or with
+``--overwrite``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ import time
 import jax
 import numpy as np
 
+from dexjax.cli import (add_overwrite_flag, atomic_write, check_output_file, command, is_dexjax_png, owned_npz,
+                        stamp_png)
 from dexjax.objects.sets import load_object_set, prepare_object_set
 from dexjax.sim.bodies import heap_objects
 from dexjax.sim.heap import HeapDistribution, sample_heap_states
@@ -36,48 +40,49 @@ def _parser() -> argparse.ArgumentParser:
   s.add_argument('sources', nargs='+', metavar='SOURCE', help='builtin:NAME|all, procedural ranges, files, folders')
   s.add_argument('--heaps', type=int, default=16, help='number of heaps (default 16)')
   s.add_argument('--seed', type=int, default=0, help='random seed of the heap states (default 0)')
-  s.add_argument('--backend', choices=('auto', *BACKENDS), default='auto', help='physics backend (default auto)')
+  s.add_argument('--backend', choices=BACKENDS, default='auto', help='physics backend (default auto)')
   s.add_argument('--scale', type=float, default=1.0, help='unit scale of mesh files to metres (0.001: mm)')
   s.add_argument('--recursive', action='store_true', help='also read sub-directories of folders')
   s.add_argument('--out', metavar='HEAPS.npz', help='save poses, object ids, flags and object names')
   s.add_argument('--json', action='store_true', help='print the summary as one JSON object')
+  add_overwrite_flag(s)
   v = sub.add_parser('preview', help='draw settled heaps of procedural objects into a PNG')
   v.add_argument('out', metavar='OUT.png', help='output PNG')
   v.add_argument('--levels', type=int, nargs='+', default=[1, 2, 3], help='difficulty levels (default 1 2 3)')
   v.add_argument('--heaps-per-level', type=int, default=3, help='heaps per level (default 3)')
   v.add_argument('--pool', type=int, default=12, help='objects per level to draw heaps from (default 12)')
   v.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
-  v.add_argument('--backend', choices=('auto', *BACKENDS), default='auto', help='physics backend (default auto)')
+  add_overwrite_flag(v)
+  v.add_argument('--backend', choices=BACKENDS, default='auto', help='physics backend (default auto)')
   return p
+
+
+#: Arrays of a ``settle --out`` file: an existing file with all of them is this command's own output.
+SETTLE_ARRAYS = ('poses', 'object_ids', 'mask', 'left_bin', 'never_settled', 'steps', 'settled', 'object_names')
 
 
 def _settle(args: argparse.Namespace) -> int:
   if args.heaps < 1:
-    print(f'error: --heaps: expected an integer >= 1, got {args.heaps}', file=sys.stderr)
-    return 2
-  try:
-    report = load_object_set(args.sources, scale=args.scale, recursive=args.recursive)
-  except ValueError as e:
-    print(f'error: {e}', file=sys.stderr)
-    return 2
+    raise ValueError(f'--heaps: expected an integer >= 1, got {args.heaps}')
+  out = args.out and check_output_file(args.out, owned=owned_npz(*SETTLE_ARRAYS), overwrite=args.overwrite)
+  report = load_object_set(args.sources, scale=args.scale, recursive=args.recursive)
   prepared, rejected = prepare_object_set(report, model=False, progress=not args.json)
   for r in rejected:
     print(f'rejected {r}', file=sys.stderr)
   dist = HeapDistribution()
   if len(prepared) < dist.min_count:
-    print(f'error: {len(prepared)} object(s) loaded; a heap needs at least {dist.min_count}', file=sys.stderr)
-    return 2
+    raise ValueError(f'{len(prepared)} object(s) loaded; a heap needs at least {dist.min_count}')
   states = sample_heap_states(jax.random.key(args.seed), args.heaps, len(prepared), dist)
   start = time.perf_counter()
   result = settle(heap_objects(prepared), states, backend=args.backend)
   seconds = time.perf_counter() - start
   summary = {**result.summary(), 'rejected_objects': len(rejected), 'seconds': round(seconds, 3),
              'heaps_per_s': round(args.heaps / seconds, 3)}
-  if args.out:
-    names = np.array([p.name for p in prepared])
-    np.savez_compressed(args.out, poses=result.poses, object_ids=np.asarray(states.object_ids), mask=result.mask,
-                        left_bin=result.left_bin, never_settled=result.never_settled, steps=result.steps,
-                        settled=result.settled, object_names=names)
+  if out:
+    arrays = dict(poses=result.poses, object_ids=np.asarray(states.object_ids), mask=result.mask,
+                  left_bin=result.left_bin, never_settled=result.never_settled, steps=result.steps,
+                  settled=result.settled, object_names=np.array([p.name for p in prepared]))
+    atomic_write(out, lambda f: np.savez_compressed(f, **arrays))
   if args.json:
     print(json.dumps(summary))
   else:
@@ -91,18 +96,12 @@ def _settle(args: argparse.Namespace) -> int:
 
 
 def _preview(args: argparse.Namespace) -> int:
+  out = check_output_file(args.out, option='OUT.png', owned=is_dexjax_png, overwrite=args.overwrite)
   from dexjax.sim.preview import procedural_heap_rows, save_heap_sheet  # pylint: disable=g-import-not-at-top
-  try:
-    rows = procedural_heap_rows(levels=args.levels, heaps_per_level=args.heaps_per_level, pool=args.pool,
-                                seed=args.seed, backend=args.backend)
-  except ValueError as e:
-    print(f'error: {e}', file=sys.stderr)
-    return 2
-  try:
-    save_heap_sheet(args.out, rows)
-  except OSError as e:
-    print(f'error: cannot write {args.out}: {e}', file=sys.stderr)
-    return 1
+  rows = procedural_heap_rows(levels=args.levels, heaps_per_level=args.heaps_per_level, pool=args.pool,
+                              seed=args.seed, backend=args.backend)
+  save_heap_sheet(args.out, rows)
+  stamp_png(out, 'python -m dexjax.sim preview')
   for row in rows:
     s = row.result.summary()
     print(f"{row.label}: {s['heaps']} heaps, {s['objects']} objects, {s['settled_heaps']} settled, "
@@ -111,6 +110,7 @@ def _preview(args: argparse.Namespace) -> int:
   return 0
 
 
+@command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
   return _settle(args) if args.command == 'settle' else _preview(args)
