@@ -10,7 +10,9 @@ Backends:
 * ``serial``: an in-process loop (the default for ``workers == 1``).
 * ``process``: a `concurrent.futures.ProcessPoolExecutor` with the ``spawn`` start method (JAX is not fork-safe);
   the children get the parent's ``sys.path``. A child that dies (e.g. killed for memory) breaks the pool, and
-  every index not finished by then is reported as failed with that error.
+  every index not finished by then is reported as failed with that error. The children die with their parent
+  (`die_with_parent`): a parent killed even with SIGKILL leaves no worker behind (each holds a compiled
+  labeller, ~1.6 GB); their half-written shards are temporary files, removed by the next run.
 * ``ray``: tasks on a Ray instance: a fresh local one with ``num_cpus=workers`` (no dashboard; its workers get
   the parent's ``sys.path`` through ``PYTHONPATH``), or the cluster at ``ray_address``. If Ray is already
   initialised in this process, that instance is used. Only an instance started here is shut down here.
@@ -34,6 +36,8 @@ from tqdm import tqdm
 BACKENDS = ("serial", "process", "ray")
 _TRACEBACK_LINES = 6
 _RAY_INSTALL = "pip install 'dexjax[ray]'"
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+_PARENT_POLL_SECONDS = 1.0
 
 
 @dataclasses.dataclass
@@ -139,11 +143,48 @@ def run_tasks(task: Callable[[int], dict], indices: Iterable[int], *, backend: s
   return run
 
 
+# Run by each process-backend worker as its pool initializer, through the builtin ``exec`` (so the worker runs it
+# right after start-up, before it imports dexjax (several seconds) to unpickle its first task): die with the parent.
+# On Linux the kernel sends SIGKILL to the worker when its parent exits (prctl PR_SET_PDEATHSIG; works even while
+# the worker is busy in compiled code); elsewhere a daemon thread polls os.getppid() every second. A parent already
+# gone when this runs (a race at start-up) ends the worker at once. Mesh-scale warnings are the parent's (it loaded
+# the same objects first), so the workers do not repeat them.
+_WORKER_INIT = """
+import ctypes, os, signal, sys, threading, time, warnings
+armed = False
+if sys.platform.startswith('linux'):
+  try:
+    armed = ctypes.CDLL(None, use_errno=True).prctl({option}, signal.SIGKILL, 0, 0, 0) == 0
+  except (OSError, AttributeError):
+    armed = False
+if os.getppid() != {parent_pid}:
+  os._exit(1)
+if not armed:
+  def watch_parent():
+    while os.getppid() == {parent_pid}:
+      time.sleep({poll})
+    os._exit(1)
+  threading.Thread(target=watch_parent, name='dexjax-parent-watchdog', daemon=True).start()
+warnings.filterwarnings('ignore', message="mesh '.*': largest extent")
+"""
+
+
+def die_with_parent(parent_pid: int) -> None:
+  """Makes this (worker) process exit when the process ``parent_pid`` that started it dies, however it dies
+  (SIGKILL included); see ``_WORKER_INIT``. `run_tasks`' process workers do this before anything else."""
+  exec(_worker_init_code(parent_pid), {})  # pylint: disable=exec-used (our own constant code)
+
+
+def _worker_init_code(parent_pid: int) -> str:
+  return _WORKER_INIT.format(option=_PR_SET_PDEATHSIG, parent_pid=int(parent_pid), poll=_PARENT_POLL_SECONDS)
+
+
 def _run_processes(task, order: list[int], workers: int, collector: _Collector) -> None:
   if not order:
     return
   context = multiprocessing.get_context("spawn")
-  with concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(order)), mp_context=context) as pool:
+  with concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(order)), mp_context=context,
+                                              initializer=exec, initargs=(_worker_init_code(os.getpid()), {})) as pool:
     futures = {pool.submit(_call, task, index): index for index in order}
     for future in concurrent.futures.as_completed(futures):
       index = futures[future]
