@@ -25,6 +25,7 @@ import errno
 import functools
 import json
 import os
+import secrets
 import struct
 import sys
 import tempfile
@@ -275,9 +276,9 @@ def atomic_path(path: str | os.PathLike[str], suffix: str = '') -> Iterator[Path
   directory = path.parent if str(path.parent) else Path('.')
   tmp = None
   try:
-    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.tmp-', suffix=suffix, dir=directory)
-    os.close(fd)
-    os.chmod(tmp, _file_mode(path))
+    tmp = _new_temporary(directory, f'.{path.name}.tmp-', suffix)
+    if path.exists():
+      os.chmod(tmp, path.stat().st_mode & 0o7777)  # the new version keeps the old file's permissions
     yield Path(tmp)
     os.replace(tmp, path)
   except OSError as e:
@@ -289,14 +290,16 @@ def atomic_path(path: str | os.PathLike[str], suffix: str = '') -> Iterator[Path
       os.remove(tmp)
 
 
-def _file_mode(path: Path) -> int:
-  """Permission bits for a new version of ``path``: the existing file's, or 0o666 less the umask."""
-  try:
-    return path.stat().st_mode & 0o7777
-  except OSError:
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
+def _new_temporary(directory: Path, prefix: str, suffix: str) -> str:
+  """Creates an empty file ``directory/<prefix><random><suffix>`` with an ordinary new file's permissions (0666
+  less the umask; `tempfile.mkstemp` would give 0600) and returns its name."""
+  while True:
+    tmp = os.path.join(directory, f'{prefix}{secrets.token_hex(8)}{suffix}')
+    try:
+      os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+      return tmp
+    except FileExistsError:
+      continue
 
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[IO[bytes]], Any]) -> None:

@@ -20,7 +20,7 @@ import hashlib
 import inspect
 import json
 import os
-import tempfile
+import secrets
 import warnings
 from typing import Any
 
@@ -166,7 +166,7 @@ def _atomic_write(path: str | os.PathLike[str], suffix: str, write) -> None:
   tmp = None
   try:
     os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix='.tmp-', suffix=suffix, dir=directory)
+    fd, tmp = _temporary_file(directory, suffix, path)
     with os.fdopen(fd, 'wb') as f:
       write(f)
       f.flush()
@@ -179,6 +179,22 @@ def _atomic_write(path: str | os.PathLike[str], suffix: str, write) -> None:
   finally:
     if tmp is not None and os.path.exists(tmp):
       os.remove(tmp)
+
+
+def _temporary_file(directory: str, suffix: str, path: str) -> tuple[int, str]:
+  """(descriptor, name) of a new file ``directory/.tmp-<random><suffix>`` with the permissions of ``path`` if
+  it exists, else the umask's (0666 less the umask, as an ordinary new file; `tempfile.mkstemp` would give 0600)."""
+  while True:
+    tmp = os.path.join(directory, f'.tmp-{secrets.token_hex(8)}{suffix}')
+    try:
+      fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except FileExistsError:
+      continue
+    try:
+      os.chmod(tmp, os.stat(path).st_mode & 0o7777)
+    except FileNotFoundError:
+      pass
+    return fd, tmp
 
 
 def atomic_write_npz(path: str | os.PathLike[str], arrays: dict[str, np.ndarray]) -> None:
