@@ -150,6 +150,14 @@ def test_run_writes_every_shard_with_valid_rows(run):
     contacted = slots >= 0
     assert np.all(images['object_ids'][rows['image_index'][contacted], slots[contacted]] >= 0)
     assert np.all(slots[rows['failure'] == REWARD_FAILURES.index('no_object')] == -1)
+    # Each object's friction is part of the heap state: one draw per object in [0, 1], shared by a heap's images.
+    occupied = images['object_ids'] >= 0
+    friction = images['object_friction']
+    assert np.all((friction[occupied] >= 0) & (friction[occupied] <= 1)) and np.all(friction[~occupied] == 0)
+    assert len(np.unique(friction[occupied])) > 1
+    for heap in np.unique(images['heap_id']):
+      same = images['heap_id'] == heap
+      assert np.all(friction[same] == friction[same][0])
     # The 3-D pose sits at the image grasp: its origin projects to the centre pixel at the grasp depth.
     k = images['camera_intrinsics'][rows['image_index']]
     rot, pos = images['camera_rotation'][rows['image_index']], images['camera_translation'][rows['image_index']]
@@ -252,7 +260,8 @@ def test_supervisor_collision_tests_on_a_uniform_subset(run):
   images = shard.images
   with ShardGenerator(config, cache_dir=str(cache)) as generator:
     ids, mask = images['object_ids'][0], images['object_ids'][0] >= 0
-    scene, _, suction_sets = generator._heap_scene(ids, mask, images['object_poses'][0])  # pylint: disable=protected-access
+    scene, _, suction_sets = generator._heap_scene(ids, mask, images['object_poses'][0],  # pylint: disable=protected-access
+                                                   images['object_friction'][0])
   fx, fy, cx, cy = images['camera_intrinsics'][0]
   camera = Camera(intrinsics=Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=200, height=200),
                   rotation=jnp.asarray(images['camera_rotation'][0]),

@@ -14,7 +14,8 @@ import pytest
 from dexjax.geometry import sdf_value
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper
-from dexjax.quality import parallel_jaw_perturbations, robust_parallel_jaw_quality
+from dexjax.quality import (Conditions, parallel_jaw_perturbations, parallel_jaw_quality, robust_parallel_jaw_quality,
+                            sample_conditions, with_known_friction)
 from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, heap_grasp_reward, slot_distances,
                                         stack_models)
 from dexjax.sim.heap import Bin
@@ -40,8 +41,9 @@ def models(tmp_path_factory):
   return [load_object_model(f"builtin:{name}", cache_dir=cache, grid_size=GRID) for name in ("box", "cube")]
 
 
-def _scene(models, entries):
-  """A `HeapScene` of (object id, position, quaternion wxyz) entries, padded to P slots."""
+def _scene(models, entries, friction=0.8):
+  """A `HeapScene` of (object id, position, quaternion wxyz) entries, padded to P slots; ``friction`` is every
+  object's Coulomb friction in the heap state."""
   ids = np.zeros(P, np.int32)
   mask = np.zeros(P, bool)
   poses = np.tile(np.array([0, 0, 0, *IDENTITY], np.float32), (P, 1))
@@ -49,7 +51,7 @@ def _scene(models, entries):
     ids[slot], mask[slot] = index, True
     poses[slot] = np.r_[position, np.asarray(quat) / np.linalg.norm(quat)]
   return HeapScene(models=stack_models(models), object_ids=jnp.asarray(ids), mask=jnp.asarray(mask),
-                   poses=jnp.asarray(poses))
+                   poses=jnp.asarray(poses), friction=jnp.where(jnp.asarray(mask), jnp.float32(friction), 0.0))
 
 
 def _jaws(center, axis=(1.0, 0.0, 0.0), approach=DOWN, width=0.05):
@@ -139,12 +141,13 @@ def test_jit_vmap_batch_agrees_with_single_calls(models):
 
 def test_robust_probability_equals_object_frame_quality_with_world_gravity(models):
   """A box in a general pose: the reward's probability is the robust quality evaluated directly in the object
-  frame (grasp mapped with the independent NumPy rotation, gravity = R^T (0, 0, -1)), draw for draw."""
+  frame (grasp mapped with the independent NumPy rotation, gravity = R^T (0, 0, -1), the state's friction),
+  draw for draw."""
   box, key = models[BOX], jax.random.key(1)
   q = np.array([0.8, 0.4, -0.3, 0.2])
   q /= np.linalg.norm(q)
   rot, t = Rotation.from_quat(np.asarray(q, float), scalar_first=True).as_matrix(), np.array([0.03, -0.02, 0.3])
-  scene = _scene(models, [(CUBE, (-0.12, -0.12, 0.02), IDENTITY), (BOX, t, q)])
+  scene = _scene(models, [(CUBE, (-0.12, -0.12, 0.02), IDENTITY), (BOX, t, q)], friction=0.7)
   world = lambda p: rot @ np.asarray(p) + t
   # Jaws closing on the 4 cm (z) faces, off-centre in x so that gravity's direction matters.
   local = _jaws((0.025, 0.0, 0.0), axis=(0.0, 0.0, 1.0), approach=(0.0, -1.0, 0.0))
@@ -153,8 +156,8 @@ def test_robust_probability_equals_object_frame_quality_with_world_gravity(model
   assert int(record.target_slot) == 1
 
   def direct(gravity):
-    perturbations = parallel_jaw_perturbations().replace(gravity_axis=jnp.asarray(gravity, jnp.float32),
-                                                          gravity_cone_angle=0.0)
+    perturbations = with_known_friction(parallel_jaw_perturbations(), 0.7).replace(
+        gravity_axis=jnp.asarray(gravity, jnp.float32), gravity_cone_angle=0.0)
     return float(_robust_pj(key, box, local, ParallelJawGripper(), perturbations).probability)
 
   np.testing.assert_allclose(float(record.robust_probability), direct(rot.T @ np.array(DOWN)), atol=1e-6)
@@ -173,3 +176,47 @@ def test_quat_to_matrix_matches_scipy_in_numpy_and_jax():
   np.testing.assert_allclose(quat_to_matrix(q), expected, atol=1e-12)
   np.testing.assert_allclose(np.asarray(jax.vmap(lambda x: quat_to_matrix(x, xp=jnp))(jnp.asarray(q, jnp.float32))),
                              expected, atol=1e-5)
+
+
+def _off_centre_jaws():
+  """Jaws across a cube resting at the origin, moved off its centre along x and z (the weight then twists the
+  object in the grip, which only friction resists)."""
+  return [_jaws((dx, 0.0, 0.02 + dz), axis=(0.0, 1.0, 0.0)) for dx in (0.0, 0.006, 0.012, 0.016)
+          for dz in (0.0, 0.008, 0.014)]
+
+
+def test_reward_uses_the_heap_states_friction(models):
+  """Friction is part of the heap state x_t: the same heap at friction 0.1 gets lower parallel-jaw rewards
+  than at 0.9, draw for draw (same keys)."""
+  grasps = jax.tree.map(lambda *xs: jnp.stack(xs), *_off_centre_jaws())
+  entries = [(CUBE, (0.0, 0.0, 0.02), IDENTITY), (CUBE, (-0.12, 0.12, 0.02), IDENTITY)]
+  scenes = {mu: jax.tree.map(lambda x: jnp.broadcast_to(x, (len(_off_centre_jaws()),) + x.shape),
+                             _scene(models, entries, friction=mu)) for mu in (0.1, 0.9)}
+  low, high = (_batched_reward(KEY, grasps, scenes[mu], BIN) for mu in (0.1, 0.9))
+  assert np.all(np.asarray(low.target_slot) == 0) and np.all(np.asarray(high.target_slot) == 0)
+  p_low, p_high = np.asarray(low.robust_probability), np.asarray(high.robust_probability)
+  assert np.all(p_low <= p_high) and p_low.mean() < p_high.mean() - 0.2, (p_low, p_high)
+  assert int(np.sum(low.reward)) < int(np.sum(high.reward))
+
+
+def test_reward_draws_only_mass_pose_and_disturbance(models):
+  """Two rewards of one state differ only through the mass, gripper-pose and eps_w draws: with those three
+  switched off, every key gives the same outcome in every sample, equal to the deterministic quality at the
+  state's friction, world gravity and the mean mass."""
+  scene = _scene(models, [(CUBE, (0.0, 0.0, 0.02), IDENTITY)], friction=0.35)
+  quiet = parallel_jaw_perturbations().replace(mass_variance=1e-9, position_sigma=0.0, disturbance_sigma=0.0)
+  reward = jax.jit(lambda k, g: heap_grasp_reward(k, g, scene, BIN, perturbations=quiet).robust_probability)
+  for grasp in _off_centre_jaws():
+    probs = {float(reward(jax.random.key(seed), grasp)) for seed in range(4)}
+    assert len(probs) == 1 and probs <= {0.0, 1.0}, probs
+    nominal = parallel_jaw_quality(models[CUBE], grasp.replace(center=grasp.center - jnp.array([0.0, 0.0, 0.02])),
+                                   ParallelJawGripper(),
+                                   Conditions(mass=jnp.float32(0.25), friction=jnp.float32(0.35),
+                                              gravity=jnp.asarray(DOWN, jnp.float32),
+                                              disturbance=jnp.zeros(6, jnp.float32)))
+    assert probs == {float(nominal.resists)}
+  # And the state's friction is what every draw sees, while mass and disturbance still vary.
+  draws = jax.vmap(lambda k: sample_conditions(k, with_known_friction(parallel_jaw_perturbations(), 0.35),
+                                               jnp.asarray(DOWN)))(jax.random.split(KEY, 64))
+  np.testing.assert_array_equal(np.asarray(draws.friction), np.float32(0.35))
+  assert np.std(np.asarray(draws.mass)) > 0.05 and np.std(np.asarray(draws.disturbance)) > 0.005

@@ -35,6 +35,7 @@ def _content(seed: int, index: int, num_images: int = 4, rows_per_image: int = 5
     "object_ids": object_ids,
     "object_poses": rng.normal(size=(n, slots, 7)).astype(np.float32),
     "object_names": np.where(object_ids >= 0, np.char.add("obj", object_ids.astype(str)), ""),
+    "object_friction": np.where(object_ids >= 0, 0.8, 0.0).astype(np.float32),
   }
   rows = {
     "gripper": rng.integers(0, 2, m).astype(np.int8),

@@ -64,7 +64,7 @@ def _scene(models, entries, num_slots=3):
   for slot, (index, position, quat, used) in enumerate(entries):
     ids[slot], occupied[slot], poses[slot] = index, used, np.r_[position, quat]
   return HeapScene(models=stack_models(models), object_ids=jnp.asarray(ids), mask=jnp.asarray(occupied),
-                   poses=jnp.asarray(poses))
+                   poses=jnp.asarray(poses), friction=jnp.where(jnp.asarray(occupied), 0.8, 0.0))
 
 
 def _ray_cast(scene):

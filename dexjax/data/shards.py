@@ -22,7 +22,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: images store the heap state's per-object friction
 MANIFEST_NAME = "manifest.json"
 _META_KEY = "__meta__"
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed member timestamp, so identical content gives identical bytes
@@ -40,6 +40,7 @@ IMAGE_SCHEMA: dict[str, tuple[str, tuple]] = {
   "object_ids": ("int32", ("P",)),                # dataset-wide object ids, -1 for empty slots
   "object_poses": ("float32", ("P", 7)),          # x, y, z (metres), qw, qx, qy, qz in the world frame
   "object_names": ("U", ("P",)),                  # object keys, "" for empty slots
+  "object_friction": ("float32", ("P",)),         # Coulomb friction of each object (heap state), 0 for empty
 }
 
 #: Row-level fields (one grasp action each), leading axis M: name -> (dtype, trailing shape).

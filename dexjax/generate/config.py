@@ -19,7 +19,8 @@ import os
 from typing import Any, Mapping
 
 from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override, string_list
-from dexjax.data.shards import config_fingerprint
+from dexjax.data.shards import FORMAT_VERSION, config_fingerprint
+from dexjax.generate.labels import LABEL_VERSION
 from dexjax.generate.policy import PolicyParams
 from dexjax.generate.supervisor import SupervisorParams
 from dexjax.quality.heap_reward import RewardParams
@@ -237,10 +238,12 @@ def load_generate_config(path: str | os.PathLike[str] | None = None, *,
 
 
 def fingerprint(config: GenerateConfig) -> str:
-  """`dexjax.data.config_fingerprint` of everything that determines a shard's content (not the seed)."""
+  """`dexjax.data.config_fingerprint` of everything that determines a shard's content (not the seed): the config,
+  the shard format and the labelling version (`dexjax.generate.labels.LABEL_VERSION`)."""
   data = as_dict(config)
   data.pop('seed')
   data['settle'].pop('nthread')  # threads change speed, not results
+  data['versions'] = {'shard_format': FORMAT_VERSION, 'labels': LABEL_VERSION}
   return config_fingerprint(_plain(data))
 
 

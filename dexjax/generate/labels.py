@@ -34,6 +34,11 @@ from dexjax.sim.heap import Bin
 
 PARALLEL_JAW, SUCTION = 0, 1
 
+#: Version of the labelling semantics, part of every run's config fingerprint: bump it whenever the labels of
+#: one config change, so no cached dataset made by older code is reused. 2: the reward uses the heap state's
+#: friction per object instead of a new friction draw per Monte-Carlo sample.
+LABEL_VERSION = 2
+
 
 @struct.dataclass
 class LabelParams:
@@ -191,4 +196,4 @@ def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Ca
   return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pj, su)
 
 
-__all__ = ['PARALLEL_JAW', 'SUCTION', 'ImageRows', 'LabelParams', 'label_image', 'pickable_mask']
+__all__ = ['LABEL_VERSION', 'PARALLEL_JAW', 'SUCTION', 'ImageRows', 'LabelParams', 'label_image', 'pickable_mask']

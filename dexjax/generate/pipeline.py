@@ -11,7 +11,8 @@ a depth renderer, the jitted labeller); `ShardGenerator.generate` makes the cont
 * a heap whose simulation diverged is dropped (its images are not made; counted in the stats); objects
   that left the bin are removed from the heap before rendering and labelling;
 * image j: camera, render (depth and slot mask), optional sensor noise on the depth the policy sees,
-  then `label_image`; rows that exist (``ok``) are kept, in order.
+  then `label_image` on the heap's `HeapScene` (settled poses and the state's per-object friction, which the
+  image also stores as ``object_friction``); rows that exist (``ok``) are kept, in order.
 
 `generate_shard` is the picklable task a worker process (or Ray worker) runs: it keeps one `ShardGenerator` per
 process and config, and writes the shard with `dexjax.data.finish_shard`.
@@ -136,12 +137,14 @@ class ShardGenerator:
     d = self.config.dataset
     return math.ceil(d.images_per_shard / d.images_per_heap)
 
-  def _heap_scene(self, ids: np.ndarray, mask: np.ndarray, poses: np.ndarray) -> tuple[HeapScene, Any, Any]:
-    """The reward's scene of one heap (its P models stacked in slot order) and its slots' grasp sets."""
+  def _heap_scene(self, ids: np.ndarray, mask: np.ndarray, poses: np.ndarray,
+                  friction: np.ndarray) -> tuple[HeapScene, Any, Any]:
+    """The reward's scene of one heap (its P models stacked in slot order, the state's friction per slot) and
+    its slots' grasp sets."""
     slot_ids = np.where(mask, ids, ids[0]).astype(np.int64)
     models = stack_models([self.models[int(i)] for i in slot_ids])
     scene = HeapScene(models=models, object_ids=jnp.arange(len(ids), dtype=jnp.int32), mask=jnp.asarray(mask),
-                      poses=jnp.asarray(poses, jnp.float32))
+                      poses=jnp.asarray(poses, jnp.float32), friction=jnp.asarray(friction, jnp.float32))
     pj, su = (jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[slot_ids]), s) for s in self.grasp_sets)
     return scene, pj, su
 
@@ -155,7 +158,7 @@ class ShardGenerator:
     stats['seconds']['settle'] += time.perf_counter() - clock
     images: list[dict[str, np.ndarray]] = []
     rows: list[dict[str, np.ndarray]] = []
-    all_ids = np.asarray(states.object_ids)
+    all_ids, all_friction = np.asarray(states.object_ids), np.asarray(states.friction, np.float32)
     for h in range(self.heaps_per_shard):
       stats['heaps'] += 1
       if result.diverged[h]:
@@ -164,18 +167,19 @@ class ShardGenerator:
       mask = result.mask[h] & ~result.left_bin[h]
       stats['objects_left_bin'] += int((result.mask[h] & result.left_bin[h]).sum())
       ids, poses = np.where(mask, all_ids[h], -1).astype(np.int32), result.poses[h]
+      friction = np.where(mask, all_friction[h], 0.0).astype(np.float32)
       if not mask.any():
         continue
       clock = time.perf_counter()
       render_scene = build_render_scene(self.meshes, ids, poses, mask, bin=config.bin)
-      scene, pj_sets, su_sets = self._heap_scene(ids, mask, poses)
+      scene, pj_sets, su_sets = self._heap_scene(ids, mask, poses, friction)
       stats['seconds']['render'] += time.perf_counter() - clock
       for c in range(config.dataset.images_per_heap):
         j = h * config.dataset.images_per_heap + c
         if j >= config.dataset.images_per_shard:
           break
-        image, image_rows = self._image(j, h, index, ids, mask, poses, render_scene, scene, pj_sets, su_sets,
-                                        (k_camera, k_noise, k_label), stats)
+        image, image_rows = self._image(j, h, index, ids, mask, poses, friction, render_scene, scene, pj_sets,
+                                        su_sets, (k_camera, k_noise, k_label), stats)
         image_rows['image_index'] = np.full(len(image_rows['gripper']), len(images), np.int32)
         images.append(image)
         rows.append(image_rows)
@@ -183,7 +187,7 @@ class ShardGenerator:
     self.shards_made += 1
     return stacked_images, stacked_rows, stats
 
-  def _image(self, j, h, index, ids, mask, poses, render_scene, scene, pj_sets, su_sets, keys, stats):
+  def _image(self, j, h, index, ids, mask, poses, friction, render_scene, scene, pj_sets, su_sets, keys, stats):
     """Image ``j`` of the shard (heap ``h``): render, noise, label; returns (image fields, row fields)."""
     config = self.config
     k_camera, k_noise, k_label = (jax.random.fold_in(k, j) for k in keys)
@@ -207,7 +211,8 @@ class ShardGenerator:
              'camera_rotation': np.asarray(camera.rotation, np.float32),
              'camera_translation': np.asarray(camera.position, np.float32),
              'heap_id': np.int64(index * self.heaps_per_shard + h), 'object_ids': ids.astype(np.int32),
-             'object_poses': np.asarray(poses, np.float32), 'object_names': names}
+             'object_poses': np.asarray(poses, np.float32), 'object_names': names,
+             'object_friction': friction}
     keep = out.ok
     image_rows = {'gripper': out.gripper[keep].astype(np.int8), 'center': out.center[keep].astype(np.float32),
                   'angle': out.angle[keep].astype(np.float32), 'grasp_depth': out.grasp_depth[keep].astype(np.float32),

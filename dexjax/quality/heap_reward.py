@@ -15,13 +15,15 @@ S = 1 iff, in this order of checks (the first failing one names the `RewardRecor
    jaws, smallest absolute distance for suction); ``target_slot`` is -1 when nothing is contacted.
 3. ``not_robust``: the robust quality of the grasp on the target alone (`robust_parallel_jaw_quality` /
    `robust_suction_quality`, M = ``num_samples`` = 10 draws) exceeds ``threshold`` = 0.5 (strictly: "over
-   50 %"). The grasp is expressed in the target's frame, and gravity is the world's -z in that frame:
-   ``Perturbations.gravity_axis`` = R^T (0, 0, -1) with ``gravity_cone_angle`` = 0 (a fixed direction),
-   while mass, friction, pose noise and disturbance are drawn as in the supervisor's model.
+   50 %"). The grasp is expressed in the target's frame. What belongs to the heap state x_t is fixed: gravity
+   is the world's -z in that frame (``Perturbations.gravity_axis`` = R^T (0, 0, -1), ``gravity_cone_angle``
+   = 0) and the Coulomb friction is the target's own, ``HeapScene.friction`` (seed: friction is drawn once
+   per object as part of the state, `dexjax.sim.HeapState.friction`). The M draws randomise what the seed
+   names: the object mass (Gamma), the gripper position (2.5 mm / 0.1 mm) and the disturbance wrench eps_w.
 
 Heap objects: `HeapScene` holds the models of the N available objects stacked along a leading axis (all
 built with the same grid size, e.g. `prepare_object_set` output at one ``grid_size``; `stack_models`), and
-per slot of the padded heap (P = 10) an object id, a mask and a pose. Signed distances are read straight
+per slot of the padded heap (P = 10) an object id, a mask, a pose and the object's Coulomb friction. Signed distances are read straight
 from the stacked grid at (id, voxel) (`_stacked_sdf`), so no per-slot copy of a grid is made; only the
 target's model is gathered (once) for the robust quality. Every function takes one grasp; batch with
 `jax.vmap` (over grasps, keys or heaps).
@@ -46,7 +48,8 @@ from dexjax.quality.grasp_quality import QualityConfig
 from dexjax.quality.gripper_geometry import (GripperGeometry, jaw_collision_points, jaw_contact_points,
                                              suction_collision_points, suction_contact_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
-                                   robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations)
+                                   robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations,
+                                   with_known_friction)
 
 if TYPE_CHECKING:
   from dexjax.sim.heap import Bin
@@ -69,12 +72,15 @@ class HeapScene:
     mask: (P,) bool, the slot holds an object of the heap.
     poses: (P, 7) float32 object-frame poses in the world frame: position (metres), then the unit
       quaternion (w, x, y, z) rotating object coordinates into the world (`SettleResult.poses[b]`).
+    friction: (P,) float32 Coulomb friction coefficient of each slot's object, part of the heap state
+      (`HeapState.friction`, drawn once per object from the seed's truncated Gaussian).
   """
 
   models: ObjectModel
   object_ids: jax.Array
   mask: jax.Array
   poses: jax.Array
+  friction: jax.Array
 
 
 @struct.dataclass
@@ -172,10 +178,13 @@ def _to_object_frame(pose: jax.Array, point: jax.Array, directions: jax.Array):
   return (point - pose[:3]) @ rot, directions @ rot, rot
 
 
-def _gravity_perturbations(base: Perturbations, rot: jax.Array, num_samples: int) -> Perturbations:
-  """``base`` with gravity fixed to the world's -z expressed in the object frame (object-to-world ``rot``)."""
+def _state_perturbations(base: Perturbations, rot: jax.Array, friction: jax.Array,
+                         num_samples: int) -> Perturbations:
+  """``base`` with what the heap state fixes: gravity along the world's -z expressed in the object frame
+  (object-to-world ``rot``) and the object's Coulomb ``friction``; mass, pose and disturbance stay random."""
   down = jnp.asarray(_WORLD_DOWN, jnp.float32) @ rot
-  return base.replace(gravity_axis=down, gravity_cone_angle=0.0, num_samples=num_samples)
+  fixed = with_known_friction(base, friction)
+  return fixed.replace(gravity_axis=down, gravity_cone_angle=0.0, num_samples=num_samples)
 
 
 def _select_target(contacted: jax.Array, center_distance: jax.Array) -> jax.Array:
@@ -246,7 +255,7 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
     gripper: jaw parameters of the robust quality.
     params: reward settings.
     perturbations: robust-quality noise (default `parallel_jaw_perturbations`); its gravity is replaced by
-      the world's.
+      the world's and its friction by the target's ``scene.friction``.
   """
   tol = params.collision_tolerance
   hit_object, hit_bin = parallel_jaw_collisions(grasp, scene, bin_, gripper, params)
@@ -257,8 +266,8 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
   center, dirs, rot = _to_object_frame(obj_pose, grasp.center, jnp.stack([grasp.axis, grasp.approach]))
   local = grasp.replace(center=center, axis=dirs[0], approach=dirs[1])
   base = parallel_jaw_perturbations() if perturbations is None else perturbations
-  robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper,
-                                       _gravity_perturbations(base, rot, params.num_samples), params.quality)
+  pert = _state_perturbations(base, rot, scene.friction[jnp.maximum(target, 0)], params.num_samples)
+  robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper, pert, params.quality)
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
 
@@ -268,7 +277,7 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   """Dex-Net 4.0 reward of one suction grasp given in the world frame (see the module doc).
 
   Args: as `parallel_jaw_heap_reward`; ``perturbations`` defaults to `suction_perturbations` (gravity replaced
-  by the world's).
+  by the world's, friction by the target's).
   """
   hit_object, hit_bin = suction_collisions(grasp, scene, bin_, gripper, params)
   mouth = to_world(suction_pose(grasp), suction_contact_points(params.geometry, gripper.cup_radius))
@@ -278,8 +287,8 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   center, dirs, rot = _to_object_frame(obj_pose, grasp.center, grasp.approach[None])
   local = grasp.replace(center=center, approach=dirs[0])
   base = suction_perturbations() if perturbations is None else perturbations
-  robust = robust_suction_quality(key, _target_model(scene, target), local, gripper,
-                                  _gravity_perturbations(base, rot, params.num_samples), params.quality)
+  pert = _state_perturbations(base, rot, scene.friction[jnp.maximum(target, 0)], params.num_samples)
+  robust = robust_suction_quality(key, _target_model(scene, target), local, gripper, pert, params.quality)
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
 

@@ -6,7 +6,8 @@ estimated over ``num_samples`` i.i.d. draws of (seed, "Reward Distribution" and 
 * object mass ~ Gamma with mean 0.25 kg and variance 0.05 kg^2 (shape 1.25, scale 0.2 kg);
 * gripper position ~ centre + N(0, sigma^2 I): sigma = 2.5 mm (parallel jaw), 0.1 mm (suction); an optional
   rotation noise (off by default: the seed perturbs position only);
-* friction ~ N(0.8, 0.01) (variance, i.e. std 0.1) truncated to [0, 1] (a true truncated normal);
+* friction ~ N(0.8, 0.01) (variance, i.e. std 0.1) truncated to [0, 1] (a true truncated normal); variance 0
+  fixes it at the mean (the heap reward: friction is part of the heap state, `with_known_friction`);
 * gravity direction uniform on the sphere (parallel jaw) or uniform within pi/6 of the approach axis (suction;
   the exact distribution rejection sampling would give), or about a fixed axis (world gravity in a heap);
 * disturbance wrench ~ N(0, 0.01^2 I) (newtons and newton metres).
@@ -42,7 +43,8 @@ class Perturbations:
     mass_mean: kg.
     mass_variance: kg^2.
     friction_mean: mean of the (pre-truncation) normal.
-    friction_variance: variance of the (pre-truncation) normal.
+    friction_variance: variance of the (pre-truncation) normal; 0 fixes the friction at ``friction_mean``
+      (clipped to ``friction_range``).
     friction_range: (low, high) truncation interval.
     position_sigma: std of each coordinate of the gripper position noise, metres.
     rotation_sigma: std of each coordinate of the gripper rotation-vector noise, radians.
@@ -77,6 +79,12 @@ def suction_perturbations(num_samples: int = REWARD_SAMPLES, **overrides) -> Per
                        **overrides)
 
 
+def with_known_friction(perturbations: Perturbations, friction: float | jax.Array) -> Perturbations:
+  """``perturbations`` with the Coulomb friction fixed at ``friction`` (a () value, e.g. the heap state's for
+  the grasped object) instead of drawn: the other draws (mass, pose, gravity, disturbance) are unchanged."""
+  return perturbations.replace(friction_mean=friction, friction_variance=0.0)
+
+
 @struct.dataclass
 class RobustQuality:
   """Monte-Carlo estimate for one grasp.
@@ -96,10 +104,12 @@ def sample_conditions(key: jax.Array, perturbations: Perturbations, approach: ja
   p = perturbations
   shape = p.mass_mean**2 / p.mass_variance
   mass = jax.random.gamma(k_mass, shape) * (p.mass_variance / p.mass_mean)
-  std = jnp.sqrt(p.friction_variance)
   low, high = p.friction_range
-  friction = p.friction_mean + std * jax.random.truncated_normal(k_mu, (low - p.friction_mean) / std,
-                                                                 (high - p.friction_mean) / std)
+  std = jnp.sqrt(jnp.asarray(p.friction_variance, jnp.float32))
+  safe = jnp.where(std > 0.0, std, 1.0)
+  drawn = p.friction_mean + safe * jax.random.truncated_normal(k_mu, (low - p.friction_mean) / safe,
+                                                               (high - p.friction_mean) / safe)
+  friction = jnp.where(std > 0.0, drawn, jnp.clip(p.friction_mean, low, high))  # variance 0: a known friction
   axis = approach if p.gravity_axis is None else p.gravity_axis
   gravity = sample_cone(k_grav, axis, p.gravity_cone_angle)
   disturbance = p.disturbance_sigma * jax.random.normal(k_dist, (6,))
