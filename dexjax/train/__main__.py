@@ -83,7 +83,6 @@ def main(argv: list[str] | None = None) -> int:
     data = args.data or quickstart_dataset(config, args.cache_dir, progress=not args.no_progress, log=log)
   except RuntimeError as e:  # some of its shards failed: not bad input, rerun to retry them
     return report_failure(e)
-  log(f'training into {out}')
   summary = train_run(config, data, out, resume=args.resume, progress=not args.no_progress, log=log)
   if args.json:
     print(json.dumps(summary, indent=1))

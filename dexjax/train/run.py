@@ -133,6 +133,7 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
   stats = dataset_stats(data_dir, config)
   for gripper in config.grippers:
     check_trainable(gripper, stats[gripper], config, data_dir)
+  log(f'training into {out}')
   if is_main_process():
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / CONFIG_FILE, yaml.safe_dump(config_to_dict(config), sort_keys=False))
