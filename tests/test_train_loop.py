@@ -25,12 +25,14 @@ from dexjax.train import (CheckpointConfig, Interrupted, LoopConfig, TrainConfig
 _SIZE, _GRID = 112, 24
 
 
-def _write_dataset(out_dir, num_shards: int = 4, images_per_shard: int = 4, seed: int = 0) -> None:
+def _write_dataset(out_dir, num_shards: int = 4, images_per_shard: int = 4, seed: int = 0,
+                   shard_offset: float = 0.0) -> None:
+  """``shard_offset``: shard s's depth is raised by s times this (metres), so rows of different shards differ."""
   rng = np.random.default_rng(seed)
   centers = [(u, v) for v in range(20, _SIZE - 19, _GRID) for u in range(20, _SIZE - 19, _GRID)]  # 4 x 4 grasps
   for s in range(num_shards):
     n = images_per_shard
-    depth = (0.8 + rng.normal(0, 0.001, (n, _SIZE, _SIZE))).astype(np.float32)
+    depth = (0.8 + s * shard_offset + rng.normal(0, 0.001, (n, _SIZE, _SIZE))).astype(np.float32)
     rows = {k: [] for k in ('gripper', 'center', 'angle', 'depth', 'approach', 'reward', 'image')}
     for i in range(n):
       for k, (u, v) in enumerate(centers):
@@ -90,6 +92,29 @@ def test_stats_count_the_training_rows_of_the_gripper(data, stats):
   assert len(labels) == stats.train_rows // 16 * 16  # whole batches only
   assert 0.15 < stats.positive_rate < 0.45
   assert float(stats.normalization.image_std) > 0
+
+
+def test_normalization_is_fitted_on_a_uniform_random_subset_of_the_training_rows(tmp_path):
+  """Rows of each shard lie at their own depth: statistics of the first rows read would be one shard's; a uniform
+  random subset has (within sampling error) the mean of all training rows, computed here by brute force."""
+  from dexjax.data import iterate_rows
+  from dexjax.models import fit_normalization
+  from dexjax.train import gripper_examples
+  _write_dataset(tmp_path, num_shards=4, images_per_shard=8, shard_offset=0.1)
+  config = dataclasses.replace(CONFIG, loop=dataclasses.replace(CONFIG.loop, normalization_rows=40))
+  sub = dataset_stats(tmp_path, config)['parallel_jaw']
+  everything = [(ex['crops'], ex['poses']) for batch in iterate_rows(
+      tmp_path, 'train', batch_size=1000, seed=0, by=config.split.by, val_fraction=config.split.val_fraction,
+      split_seed=config.split.seed) if (ex := gripper_examples(
+          {k: v[batch['gripper'] == 0] for k, v in batch.items()}, 'parallel_jaw', config.model.crop_size,
+          config.crop_window))['crops'].size]
+  full = fit_normalization(everything)
+  assert sub.train_rows > 3 * 40
+  # Shards sit 0.1 m apart (per-row std of the shard offset ~0.11 m): 40 random rows land within ~0.02 m.
+  assert abs(float(sub.normalization.image_mean) - float(full.image_mean)) < 0.05
+  assert float(sub.normalization.image_std) > 0.07  # rows of several shards, not one shard's 0.02 m bumps
+  again = dataset_stats(tmp_path, config)['parallel_jaw']
+  assert float(again.normalization.image_mean) == float(sub.normalization.image_mean)  # seeded
 
 
 def test_batches_are_reproducible_and_skipping_resumes_the_same_order(data, stats):

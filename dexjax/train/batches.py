@@ -7,8 +7,8 @@ shape). The order is a function of (dataset, config, seed, epoch) only, so `trai
 yields exactly the batches k, k+1, ... of an uninterrupted epoch (skipped batches are counted, not cropped):
 that is how a resumed run continues with the same data order.
 
-`dataset_stats` is one pass over the training split: rows and positives per gripper, and the input
-normalisation fitted on the first ``normalization_rows`` rows of each gripper.
+`dataset_stats` counts rows and positives per gripper in the training split and fits the input normalisation on
+``normalization_rows`` rows of each gripper drawn uniformly at random (a second pass when a gripper has more).
 """
 
 from __future__ import annotations
@@ -159,40 +159,69 @@ def eval_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str,
     yield examples
 
 
+def _normalization_sample(rows: dict[str, np.ndarray], gripper: str, config: TrainConfig,
+                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+  """(crops, poses) of ``rows`` of one gripper as the statistics see them (suction: approach-angle signs
+  randomised when ``symmetrize`` is on, as the augmentation will; spec section 1.3)."""
+  ex = gripper_examples(rows, gripper, config.model.crop_size, config.crop_window)
+  poses = ex['poses']
+  if gripper == 'suction' and config.loop.symmetrize:
+    poses[:, 1] *= np.where(rng.random(len(poses)) < 0.5, -1.0, 1.0)
+  return ex['crops'], poses
+
+
+def _chosen_rows(data_dir: str | os.PathLike, config: TrainConfig, chosen: dict[str, np.ndarray],
+                 rng: np.random.Generator) -> dict[str, list]:
+  """A second pass over the training split in the first pass's order: the (crops, poses) of the rows of each
+  gripper at the sorted positions ``chosen[gripper]`` (indices among that gripper's rows)."""
+  seen = {g: 0 for g in chosen}
+  samples: dict[str, list] = {g: [] for g in chosen}
+  for batch in _split_rows(data_dir, config, 'train', config.seed, 0):
+    for gripper, positions in chosen.items():
+      sel = np.flatnonzero(batch['gripper'] == GRIPPER_NAMES.index(gripper))
+      lo, hi = np.searchsorted(positions, [seen[gripper], seen[gripper] + len(sel)])
+      if hi > lo:
+        take = sel[positions[lo:hi] - seen[gripper]]
+        samples[gripper].append(_normalization_sample({k: v[take] for k, v in batch.items()}, gripper, config, rng))
+      seen[gripper] += len(sel)
+  return samples
+
+
 def dataset_stats(data_dir: str | os.PathLike, config: TrainConfig) -> dict[str, GripperStats]:
   """Row and positive counts of each of ``config.grippers`` in the training split, and input normalisation
-  fitted on up to ``config.loop.normalization_rows`` of its rows (suction: approach-angle signs randomised
-  when ``symmetrize`` is on, as the augmentation will; spec section 1.3).
+  fitted on ``config.loop.normalization_rows`` rows of each gripper drawn uniformly at random (without
+  replacement, seeded by ``config.seed``) from its training rows, or on all of them when there are fewer.
+
+  One pass counts the rows (keeping the crops of the first ``normalization_rows``, enough when a gripper has no
+  more); a gripper with more rows gets a second pass that crops only the drawn rows, so the statistics are not
+  those of the first shards read (whose rows share heaps and objects).
 
   Raises:
     ValueError: a gripper has no training rows (naming the directory and the gripper).
   """
+  limit = config.loop.normalization_rows
   counts = {g: [0, 0] for g in config.grippers}
   samples: dict[str, list] = {g: [] for g in config.grippers}
-  taken = {g: 0 for g in config.grippers}
   rng = np.random.default_rng([config.seed, 0x57A7])
   for batch in _split_rows(data_dir, config, 'train', config.seed, 0):
     for gripper in config.grippers:
       sel = batch['gripper'] == GRIPPER_NAMES.index(gripper)
+      room = limit - counts[gripper][0]
       counts[gripper][0] += int(sel.sum())
       counts[gripper][1] += int((batch['reward'][sel] == 1).sum())
-      room = config.loop.normalization_rows - taken[gripper]
       if room > 0 and sel.any():
-        rows = {k: v[sel][:room] for k, v in batch.items()}
-        ex = gripper_examples(rows, gripper, config.model.crop_size, config.crop_window)
-        poses = ex['poses']
-        if gripper == 'suction' and config.loop.symmetrize:  # the augmentation flips the approach angle's sign
-          poses[:, 1] *= np.where(rng.random(len(poses)) < 0.5, -1.0, 1.0)
-        samples[gripper].append((ex['crops'], poses))
-        taken[gripper] += len(poses)
-  stats = {}
+        samples[gripper].append(_normalization_sample({k: v[sel][:room] for k, v in batch.items()}, gripper,
+                                                      config, rng))
   for gripper in config.grippers:
     if counts[gripper][0] == 0:
       raise ValueError(f"{os.fspath(data_dir)}: no training rows of gripper '{gripper}' (split by "
                        f"{config.split.by}, val_fraction {config.split.val_fraction}); generate more images or "
                        f"train other grippers (field 'grippers')")
-    stats[gripper] = GripperStats(counts[gripper][0], counts[gripper][1], fit_normalization(samples[gripper]))
-  return stats
+  chosen = {g: np.sort(rng.choice(counts[g][0], limit, replace=False)) for g in config.grippers
+            if counts[g][0] > limit}
+  if chosen:
+    samples.update(_chosen_rows(data_dir, config, chosen, rng))
+  return {g: GripperStats(counts[g][0], counts[g][1], fit_normalization(samples[g])) for g in config.grippers}
 
 
 __all__ = ['GripperStats', 'dataset_stats', 'eval_batches', 'train_batches']
