@@ -83,7 +83,7 @@ def test_ray_missing_is_a_clear_import_error(monkeypatch):
 
 @pytest.fixture(scope="module")
 def ray_instance():
-  ray = pytest.importorskip("ray")
+  import ray  # the test extra installs it
   started = start_ray(workers=2)
   yield ray
   if started:

@@ -191,8 +191,8 @@ def test_mjx_and_rollout_agree():
 
 
 def test_with_convex_decomposition_hulls():
-  """Heaps built from `dexjax.objects.collision.collision_hulls` (runs once that module is present)."""
-  collision = pytest.importorskip("dexjax.objects.collision")
+  """Heaps built from `dexjax.objects.collision.collision_hulls` (V-HACD convex decompositions)."""
+  from dexjax.objects import collision
   objects = []
   for name in ("l_shape", "box_with_hole", "cube"):
     mesh = builtin_mesh(name)
