@@ -327,6 +327,9 @@ def test_cross_field_rules_of_heaps_perturbations_and_training(tmp_path, capsys)
   validate_heap_distribution(HeapDistribution())
   config = tmp_path / 'heap.yaml'
   config.write_text('heap: {min_count: 6, max_count: 4}\n')
+  from dexjax.generate import load_generate_config
+  with pytest.raises(ConfigError, match=r'heap.yaml: heap.max_count'):  # the library's loader checks it too
+    load_generate_config(config)
   _bad(capsys, generate_main, ['--config', config, '--out', tmp_path / 'gen', '--num-images', '1'], 'heap.yaml',
        'heap.max_count')
   config.write_text('optimizer: {momentum: 1.5}\n')

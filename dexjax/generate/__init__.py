@@ -16,7 +16,7 @@ from dexjax.generate.pipeline import (NoObjectsError, ShardGenerator, close_proc
                                       label_params, supervisor_sets)
 from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
 from dexjax.generate.report import RowStats, format_summary, save_generation_png, summarize_rows
-from dexjax.generate.run import generate_dataset, num_shards, warm_caches
+from dexjax.generate.run import check_run_dir, generate_dataset, num_shards, warm_caches
 from dexjax.generate.supervisor import (GraspSet, SupervisorParams, cached_grasp_sets, heap_grasp_sets,
                                         parallel_jaw_grasp_set, parallel_jaw_supervisor_candidates,
                                         suction_grasp_set, suction_supervisor_candidates)
@@ -24,7 +24,7 @@ from dexjax.generate.supervisor import (GraspSet, SupervisorParams, cached_grasp
 __all__ = [
   'CANDIDATE', 'PARALLEL_JAW', 'SUCTION', 'SUPERVISOR', 'DatasetConfig', 'GenerateConfig', 'GraspSet', 'ImageRows',
   'LabelParams', 'NoObjectsError', 'ObjectsConfig', 'PolicyParams', 'RowStats', 'RunResult', 'ShardGenerator',
-  'SupervisorParams', 'apply_camera_file', 'cached_grasp_sets', 'close_process_generators', 'collection_actions',
+  'SupervisorParams', 'apply_camera_file', 'cached_grasp_sets', 'check_run_dir', 'close_process_generators', 'collection_actions',
   'config_from_dict', 'fingerprint', 'format_summary', 'generate_dataset', 'generate_shard', 'heap_grasp_sets',
   'image_size', 'label_image', 'label_params', 'load_generate_config', 'num_shards', 'parallel_jaw_grasp_set',
   'parallel_jaw_supervisor_candidates', 'pickable_mask', 'run_camera', 'run_tasks', 'save_generation_png',

@@ -18,7 +18,8 @@ import dataclasses
 import os
 from typing import Any, Mapping
 
-from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override, string_list
+from dexjax.config import (ConfigError, as_dict, check_sections, load_yaml, override, string_list,
+                           validate_generate_config)
 from dexjax.data.shards import FORMAT_VERSION, config_fingerprint
 from dexjax.generate.labels import LABEL_VERSION
 from dexjax.generate.policy import PolicyParams
@@ -192,7 +193,7 @@ def config_from_dict(data: Mapping[str, Any], source: str = '<config>') -> Gener
                           minimum=0),
       policy=_checked('policy', override(c.policy, _section(data, 'policy', source), source=source,
                                          section='policy', minimum=0), source))
-  return _camera(_tied(config), _section(data, 'camera', source), source)
+  return validate_generate_config(_camera(_tied(config), _section(data, 'camera', source), source), source)
 
 
 def _tied(config: GenerateConfig) -> GenerateConfig:
