@@ -151,7 +151,7 @@ def _cvxopt_residuals(g, t, groups, limits) -> np.ndarray:
   the squared residual itself and the absolute gap tolerance applies to it). The residual is evaluated at
   the returned alpha (clipped to >= 0, so it is an upper bound of the optimum).
   """
-  cvxopt = pytest.importorskip("cvxopt")
+  import cvxopt  # the test extra installs it: a missing reference must fail, not skip
   options = {"show_progress": False, "abstol": 1e-14, "reltol": 1e-10, "feastol": 1e-10, "maxiters": 100}
   out = np.empty(t.shape[0])
   for i in range(t.shape[0]):
@@ -334,18 +334,24 @@ def test_decisions_match_cvxopt(decision_sets, name):
   ours, theirs = res <= TOL, ref <= TOL
   near = (ref > 0.3 * TOL) & (ref < 3.0 * TOL)
   disagree = ours != theirs
-  false_resist = ours & (ref > 2.0 * TOL)
+  # Tolerance semantics: a grasp resists when the residual of the solver's (feasible) alpha is <= TOL. That
+  # residual never undercuts the optimum beyond float32 rounding (asserted below), so a grasp is accepted only
+  # if its optimal residual is <= TOL + rounding: nothing the reference rejects by more than numerical noise
+  # may be accepted. The other direction (optimum just under TOL, solver stopping just over it) can reject.
+  noise = 1e-5 * (1.0 + np.linalg.norm(t, axis=1))
+  false_resist = ours & (ref > TOL + noise)
   print(f"\n{name}: reference resists {theirs.sum()} / {len(ref)}, {near.sum()} within [0.3, 3] tol; "
         f"disagreements {disagree.sum()} (we say resists: {np.sum(disagree & ours)}, "
-        f"we say not: {np.sum(disagree & ~ours)}); false 'resists' with reference > 2 tol: "
-        f"{false_resist.sum()}; max |ours - cvxopt| {np.abs(res - ref).max():.2e} N")
+        f"we say not: {np.sum(disagree & ~ours)}); accepted with reference > tol + rounding: "
+        f"{false_resist.sum()} (largest reference residual accepted {ref[ours].max():.6e} N); "
+        f"max |ours - cvxopt| {np.abs(res - ref).max():.2e} N")
   for i in np.nonzero(disagree)[0][:10]:
     print(f"  grasp {i}: ours {res[i]:.4e} N, cvxopt {ref[i]:.4e} N")
   assert 0.35 < theirs.mean() < 0.65 and near.sum() > 1000
   assert disagree.mean() <= 0.005
   assert false_resist.sum() == 0
   # Our residual is that of a feasible alpha, so it does not undercut the optimum beyond rounding.
-  assert np.all(res >= ref - 1e-5 * (1.0 + np.linalg.norm(t, axis=1)))
+  assert np.all(res >= ref - noise)
 
 
 # ----------------------------------------------------------------------------------------------------
