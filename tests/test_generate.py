@@ -84,6 +84,18 @@ def test_fingerprint_covers_content_not_speed():
   assert fingerprint(config_from_dict({'policy': {'epsilon': 0.02}})) != fingerprint(base)
 
 
+def test_fingerprint_changes_with_the_labelling_code_and_the_shard_format(monkeypatch):
+  """Labels made by older code (or stored in an older format) are never reused: the quick-start dataset's cache
+  key and a run's manifest both carry the fingerprint."""
+  from dexjax.generate import config as generate_config
+  base = fingerprint(GenerateConfig())
+  monkeypatch.setattr(generate_config, 'LABEL_VERSION', generate_config.LABEL_VERSION + 1)
+  assert fingerprint(GenerateConfig()) != base
+  monkeypatch.undo()
+  monkeypatch.setattr(generate_config, 'FORMAT_VERSION', generate_config.FORMAT_VERSION + 1)
+  assert fingerprint(GenerateConfig()) != base
+
+
 def test_camera_files_fix_intrinsics_or_replace_ranges(tmp_path):
   intrinsics = tmp_path / 'camera_info.yaml'
   intrinsics.write_text('width: 320\nheight: 240\nK: [300.0, 0.0, 160.5, 0.0, 305.0, 119.5, 0.0, 0.0, 1.0]\n')
