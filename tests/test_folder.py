@@ -17,14 +17,13 @@ from dexjax.objects import collision as collision_mod
 from dexjax.objects import folder as folder_mod
 from dexjax.objects.__main__ import main
 
-GOOD = ['box', 'cylinder', 'scene', 'sphere']
+GOOD = ['box', 'cylinder', 'open', 'scene', 'sphere']  # 'open' loads with an ImperfectMeshWarning
 BAD = {  # file -> words the reason must contain
     'empty.obj': 'empty file',
     'flat.obj': 'zero volume',
     'garbage.ply': 'could not be read as PLY',
     'nan.obj': 'NaN',
     'notes.xyz': 'unsupported extension .xyz; expected one of .obj, .stl, .ply, .glb',
-    'open.stl': 'not watertight',
 }
 
 
@@ -45,13 +44,16 @@ def _write_bad(directory) -> None:
   (directory / 'empty.obj').write_bytes(b'')
   (directory / 'nan.obj').write_text('v 0 0 0\nv 1 0 0\nv 0 1 0\nv nan 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n')
   (directory / 'flat.obj').write_text('v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n')
-  cylinder = trimesh.creation.cylinder(0.02, 0.05, sections=32)
-  open_top = cylinder.faces[cylinder.face_normals[:, 2] < 0.9]  # A 32-edge hole: too large to fill.
-  trimesh.Trimesh(cylinder.vertices, open_top, process=False).export(directory / 'open.stl')
   (directory / 'notes.xyz').write_text('0 0 0\n')
   (directory / 'garbage.ply').write_bytes(np.random.default_rng(0).bytes(700))
   (directory / 'box.mtl').write_text('newmtl x\n')  # Companion file: skipped.
   (directory / '.DS_Store').write_bytes(b'\x00')  # Hidden file: skipped.
+
+
+def _write_imperfect(directory) -> None:
+  cylinder = trimesh.creation.cylinder(0.02, 0.05, sections=32)
+  open_top = cylinder.faces[cylinder.face_normals[:, 2] < 0.9]  # A 32-edge hole: too large to fill.
+  trimesh.Trimesh(cylinder.vertices, open_top, process=False).export(directory / 'open.stl')
 
 
 @pytest.fixture
@@ -59,6 +61,7 @@ def mixed(tmp_path):
   directory = tmp_path / 'objects'
   directory.mkdir()
   _write_good(directory)
+  _write_imperfect(directory)
   _write_bad(directory)
   return directory
 
@@ -78,12 +81,16 @@ def test_mixed_folder_loads_the_good_and_explains_the_bad(mixed):
   np.testing.assert_allclose(by_name['scene'].mesh.volume, 2 * 0.02**3, rtol=1e-5)
   np.testing.assert_allclose(by_name['scene'].mesh.extents, [0.08, 0.02, 0.02], rtol=1e-5)
   assert by_name['scene'].mesh.body_count == 2
+  # The open cylinder: loaded as the solid its winding number encloses, with the warning kept.
+  assert [o.name for o in report.loaded if o.warnings] == ['open']
+  assert 'open.stl' in str(by_name['open'].warnings[0]) and '32 open edges' in str(by_name['open'].warnings[0])
+  np.testing.assert_allclose(by_name['open'].mesh.volume, np.pi * 0.02**2 * 0.05, rtol=0.02)
 
 
 def test_millimetre_folder_scaled_to_metres(tmp_path):
   _write_good(tmp_path, unit=0.001)
   report = load_mesh_folder(tmp_path, scale=0.001)
-  assert [o.name for o in report.loaded] == GOOD and not report.rejected
+  assert [o.name for o in report.loaded] == [g for g in GOOD if g != 'open'] and not report.rejected
   box = next(o for o in report.loaded if o.name == 'box')
   np.testing.assert_allclose(box.mesh.extents, [0.05, 0.04, 0.03], rtol=1e-6)
   with pytest.raises(ValueError, match='scale: expected a finite number > 0'):
@@ -100,7 +107,7 @@ def test_unexpected_exception_becomes_a_rejection(mixed, monkeypatch):
 
   monkeypatch.setattr(folder_mod, 'load_mesh', flaky)
   report = load_mesh_folder(mixed)
-  assert [o.name for o in report.loaded] == ['box', 'cylinder', 'scene']
+  assert [o.name for o in report.loaded] == ['box', 'cylinder', 'open', 'scene']
   assert {r.file: r.reason for r in report.rejected}['sphere.ply'] == 'RuntimeError: boom'
 
 
@@ -122,8 +129,9 @@ def test_recursive_and_ambiguous_names(tmp_path):
 def test_check_json_shape_and_exit_codes(mixed, tmp_path, capsys):
   assert main(['check', str(mixed), '--json']) == 0
   out = json.loads(capsys.readouterr().out)
-  assert list(out) == ['loaded', 'rejected']
+  assert list(out) == ['loaded', 'rejected', 'warnings']
   assert out['loaded'] == GOOD
+  assert [w['name'] for w in out['warnings']] == ['open'] and 'winding number' in out['warnings'][0]['warning']
   assert [sorted(r) for r in out['rejected']] == [['file', 'reason']] * len(BAD)
   assert {r['file']: BAD[r['file']] in r['reason'] for r in out['rejected']} == {f: True for f in BAD}
 
@@ -138,11 +146,12 @@ def test_check_json_shape_and_exit_codes(mixed, tmp_path, capsys):
   mm.mkdir()
   _write_good(mm, unit=0.001)
   assert main(['check', str(mm), '--json', '--scale', '0.001']) == 0
-  assert json.loads(capsys.readouterr().out)['loaded'] == GOOD
+  assert json.loads(capsys.readouterr().out)['loaded'] == [g for g in GOOD if g != 'open']
 
   assert main(['check', str(mixed)]) == 0  # Human-readable report.
   text = capsys.readouterr().out
-  assert 'notes.xyz' in text and 'unsupported extension' in text and '4 loaded, 6 rejected' in text
+  assert 'notes.xyz' in text and 'unsupported extension' in text and '5 loaded (1 with warnings), 5 rejected' in text
+  assert 'warning' in text and 'open edges' in text
 
 
 def test_check_missing_directory_is_a_usage_error(tmp_path):

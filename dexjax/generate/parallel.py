@@ -147,8 +147,8 @@ def run_tasks(task: Callable[[int], dict], indices: Iterable[int], *, backend: s
 # right after start-up, before it imports dexjax (several seconds) to unpickle its first task): die with the parent.
 # On Linux the kernel sends SIGKILL to the worker when its parent exits (prctl PR_SET_PDEATHSIG; works even while
 # the worker is busy in compiled code); elsewhere a daemon thread polls os.getppid() every second. A parent already
-# gone when this runs (a race at start-up) ends the worker at once. Mesh-scale warnings are the parent's (it loaded
-# the same objects first), so the workers do not repeat them.
+# gone when this runs (a race at start-up) ends the worker at once. Mesh-scale and imperfect-mesh warnings are the
+# parent's (it loaded the same objects first), so the workers do not repeat them.
 _WORKER_INIT = """
 import ctypes, os, signal, sys, threading, time, warnings
 armed = False
@@ -166,6 +166,7 @@ if not armed:
     os._exit(1)
   threading.Thread(target=watch_parent, name='dexjax-parent-watchdog', daemon=True).start()
 warnings.filterwarnings('ignore', message="mesh '.*': largest extent")
+warnings.filterwarnings('ignore', message="mesh '.*': .*loaded as the solid its generalized winding number")
 """
 
 

@@ -1,26 +1,30 @@
 """Mesh loading, validation and repair for building signed distance grids.
 
-A *signed* distance grid (see `dexjax.geometry.object_model`) is only meaningful for a closed, consistently
-oriented surface: the sign at a query point comes from the angle-weighted pseudonormal of the nearest
-feature, which flips wherever the winding or the closure is broken. This module therefore turns whatever a
-file contains into a clean solid or refuses it with a `MeshError` that names the file and the problem.
+A *signed* distance grid (see `dexjax.geometry.object_model`) needs a closed, consistently oriented surface:
+the sign at a query point comes from the angle-weighted pseudonormal of the nearest feature, which flips
+wherever the winding or the closure is broken. This module turns whatever a file contains into such a solid,
+or refuses it with a `MeshError` that names the file and the problem when it is unusable.
 
 Repair steps (`validate_and_repair`), in order:
 
 1. reject empty meshes, NaN / inf coordinates and flat meshes (all vertices in one plane);
 2. merge coincident vertices (trimesh's default 1e-8 tolerance), drop collapsed faces (a vertex index
    repeated) and duplicate faces, drop unreferenced vertices;
-3. reject non-manifold edges (shared by more than two faces);
-4. orient the faces of every connected patch consistently (breadth-first traversal over shared edges);
-5. close small holes (boundary loops of at most `MAX_HOLE_EDGES` edges) with a fan of triangles;
-6. reject what is still open;
-7. orient every closed component outward (a component nested inside an odd number of others is a cavity
-   and is oriented inward); components that overlap or touch are merged with a boolean union
-   (needs the optional manifold3d package), since overlapping shells give wrong signed distances;
-8. reject zero-volume results.
+3. orient the faces of every connected patch consistently (breadth-first traversal over shared edges);
+4. close small holes (boundary loops of at most `MAX_HOLE_EDGES` edges) with a fan of triangles;
+5. orient every closed component outward (a component nested inside an odd number of others is a cavity
+   and is oriented inward); components that overlap or touch are merged with a boolean union (manifold3d),
+   since overlapping shells give wrong signed distances;
+6. **imperfect meshes** -- non-manifold edges (shared by more than two faces), holes still open after step 4,
+   a surface that cannot be oriented, or overlapping parts that also enclose cavities -- are not rejected:
+   they become the closed solid their generalized winding number encloses (`dexjax.geometry.winding`:
+   patches turned outward by visibility, inside where the winding number exceeds 0.5, the surface rebuilt
+   by marching cubes at 1/128 of the largest extent and decimated to at most 20,000 faces; cached on disk),
+   with an `ImperfectMeshWarning` naming the file and what was wrong;
+7. reject zero-volume results (including soups whose winding number encloses nothing, e.g. an open sheet).
 
 Faces with zero area but three distinct vertices (slivers) are kept: removing one opens a slit in an
-otherwise closed surface. Self-intersections within one component are not detected.
+otherwise closed surface. Self-intersections within one closed component are not detected.
 
 The repair code uses numpy / scipy / libigl only (no networkx), so it behaves the same whether or not
 trimesh's optional graph dependencies are installed.
@@ -58,6 +62,15 @@ class ScaleWarning(UserWarning):
   """A mesh file's size in metres is implausible for a graspable object (most likely a unit mistake)."""
 
 
+class ImperfectMeshWarning(UserWarning):
+  """A mesh is open, non-manifold or cannot be oriented: it was loaded as the solid its generalized winding
+  number encloses (`dexjax.geometry.winding`), not rejected. The message names the file and what was wrong."""
+
+
+class _Overlap(Exception):
+  """Closed components overlap and enclose cavities: no boolean union applies; the soup path takes over."""
+
+
 class MeshError(ValueError):
   """A mesh file or mesh cannot be turned into a closed solid.
 
@@ -88,11 +101,13 @@ def load_mesh(path: str | os.PathLike[str], *, scale: float = 1.0) -> trimesh.Tr
     A `trimesh.Trimesh` in metres that is watertight, consistently wound and has positive volume.
 
   Raises:
-    MeshError: the extension is unsupported, the file is missing, empty or unreadable, or the mesh cannot
-      be repaired (see `validate_and_repair`).
+    MeshError: the extension is unsupported, the file is missing, empty or unreadable, or the mesh is
+      unusable (see `validate_and_repair`).
     ValueError: ``scale`` is not a finite positive number.
 
   Warns:
+    ImperfectMeshWarning: the mesh was open or non-manifold and was loaded as the solid its generalized
+      winding number encloses (see `validate_and_repair`).
     ScaleWarning: the largest extent after scaling is outside `PLAUSIBLE_EXTENT` (5 mm - 1 m), with the
       ``--scale`` that would fix the likely unit mistake (e.g. 0.001 for a file in millimetres).
   """
@@ -159,14 +174,18 @@ def validate_and_repair(mesh: trimesh.Trimesh, name: str = '<mesh>') -> trimesh.
 
   Args:
     mesh: the input mesh (not modified), vertices in metres.
-    name: file or display name used in error messages.
+    name: file or display name used in error messages and warnings.
 
   Returns:
     A new `trimesh.Trimesh`: watertight, consistently wound, positive volume.
 
   Raises:
-    MeshError: the mesh is empty, has NaN / inf coordinates, is flat or has zero volume, has non-manifold
-      edges, has holes larger than `MAX_HOLE_EDGES` edges, or cannot be oriented.
+    MeshError: the mesh is unusable: empty, NaN / inf coordinates, out-of-range face indices, flat, or
+      without enclosed volume.
+
+  Warns:
+    ImperfectMeshWarning: the mesh was open, non-manifold, non-orientable or overlapping with cavities and was
+      rebuilt as the solid its generalized winding number encloses.
   """
   if not isinstance(mesh, trimesh.Trimesh):
     raise TypeError(f"validate_and_repair('{name}'): expected a trimesh.Trimesh, got {type(mesh).__name__}")
@@ -195,31 +214,50 @@ def validate_and_repair(mesh: trimesh.Trimesh, name: str = '<mesh>') -> trimesh.
   faces = faces[np.sort(first)]
   vertices = np.asarray(out.vertices, np.float64)
 
-  edge_count = _undirected_edge_counts(faces)
-  if (edge_count > 2).any():
-    raise MeshError(
-        name,
-        f'{int((edge_count > 2).sum())} non-manifold edges (shared by more than two faces); '
-        'a signed distance grid needs a closed 2-manifold surface')
-  faces = _orient_patches(faces)
-  vertices, faces = _fill_small_holes(vertices, faces)
-  edge_count = _undirected_edge_counts(faces)
-  open_edges = int((edge_count == 1).sum())
-  if open_edges or (edge_count > 2).any():
-    raise MeshError(
-        name,
-        f'not watertight after repair ({open_edges} open edges); a signed distance grid needs a closed '
-        f'surface (holes of up to {MAX_HOLE_EDGES} edges are filled automatically)')
-  if not _is_winding_consistent(faces):
-    raise MeshError(name, 'faces cannot be oriented consistently (non-orientable surface)')
-
-  vertices, faces = _orient_components(vertices, faces, name)
+  non_manifold = int((_undirected_edge_counts(faces) > 2).sum())
+  imperfection = None
+  if non_manifold:
+    imperfection = f'{non_manifold} non-manifold edges (shared by more than two faces)'
+  else:
+    faces = _orient_patches(faces)
+    vertices, faces = _fill_small_holes(vertices, faces)
+    open_edges = int((_undirected_edge_counts(faces) == 1).sum())
+    if open_edges:
+      imperfection = (f'not watertight after repair ({open_edges} open edges; holes of up to {MAX_HOLE_EDGES} '
+                      'edges are filled automatically)')
+    elif not _is_winding_consistent(faces):
+      imperfection = 'faces cannot be oriented consistently (non-orientable surface)'
+  if imperfection is None:
+    try:
+      vertices, faces = _orient_components(vertices, faces, name)
+    except _Overlap as e:
+      imperfection = str(e)
+  if imperfection is not None:
+    vertices, faces = _solid_from_soup(vertices, faces, name, imperfection)
   out = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
   out.remove_unreferenced_vertices()
   extent = float(np.max(out.extents))
   if not out.volume > _VOLUME_RELATIVE_TOL * extent**3:
     raise MeshError(name, f'degenerate mesh: enclosed volume {out.volume:.3g} m^3 is zero or negative')
   return out
+
+
+def _solid_from_soup(vertices: np.ndarray, faces: np.ndarray, name: str,
+                     imperfection: str) -> tuple[np.ndarray, np.ndarray]:
+  """The closed solid an imperfect soup's winding number encloses (cached), with an `ImperfectMeshWarning`.
+
+  Raises:
+    MeshError: nothing is inside (an open sheet, a single patch without volume).
+  """
+  from dexjax.geometry.winding import cached_solidify  # pylint: disable=g-import-not-at-top (import cycle)
+  solid_vertices, solid_faces = cached_solidify(vertices, faces)
+  if len(solid_faces) == 0:
+    raise MeshError(name, f'{imperfection}, and no volume is inside it (its generalized winding number stays '
+                          'below 0.75 everywhere: an open sheet?); expected a solid')
+  warnings.warn(ImperfectMeshWarning(
+      f"mesh '{name}': {imperfection}; loaded as the solid its generalized winding number encloses "
+      f"(surface rebuilt closed, {len(solid_faces)} faces)"), stacklevel=4)
+  return solid_vertices, solid_faces
 
 
 def _check_not_flat(points: np.ndarray, name: str) -> None:
@@ -413,7 +451,7 @@ def _orient_components(vertices: np.ndarray, faces: np.ndarray, name: str) -> tu
     depth += (inside_count == sample_count)
     overlap |= bool(((unclear_count > 0) | ((inside_count > 0) & (inside_count < sample_count))).any())
   if overlap and (depth % 2 == 1).any():
-    raise MeshError(name, f'{num_comp} parts overlap or touch and some enclose cavities; cannot repair')
+    raise _Overlap(f'{num_comp} closed parts overlap or touch and some enclose cavities')
   if overlap:  # Overlapping or touching shells: replace them by their boolean union.
     parts = [trimesh.Trimesh(vertices, faces[idx], process=False) for idx in comps]
     for part in parts:

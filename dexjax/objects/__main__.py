@@ -4,10 +4,12 @@
   python -m dexjax.objects hulls MESH [--max-hulls K] [--max-vertices V] [--scale S]
   python -m dexjax.objects --preview OUT.png [--per-level N] [--seed S]
 
-``check`` loads every mesh file in DIR (OBJ, STL, PLY, GLB, OFF) and reports each as loaded or rejected
-with the reason (and warns about implausible sizes, e.g. a file in millimetres without ``--scale 0.001``); exit
-code 0 when at least one object loaded, 1 when none did, 2 for bad input (docs/errors.md).
-``--json`` prints ``{"loaded": [names], "rejected": [{"file": ..., "reason": ...}]}`` to stdout.
+``check`` loads every mesh file in DIR (OBJ, STL, PLY, GLB, OFF) and reports each as loaded, loaded with a
+warning (an open or non-manifold mesh loaded as the solid its winding number encloses; an implausible size, e.g. a
+file in millimetres without ``--scale 0.001``) or rejected with the reason; exit code 0 when at least one object
+loaded, 1 when none did, 2 for bad input (docs/errors.md).
+``--json`` prints ``{"loaded": [names], "rejected": [{"file": ..., "reason": ...}], "warnings": [{"name": ...,
+"warning": ...}]}`` to stdout.
 ``hulls`` prints the convex collision pieces of one mesh (a file or ``builtin:NAME``).
 ``--preview`` draws a contact sheet of procedural objects at difficulty levels 1-3 (OUT.png is checked before
 any drawing; an existing file is only replaced if this command drew it, or with ``--overwrite``).
@@ -25,7 +27,7 @@ import trimesh
 from dexjax.cli import add_overwrite_flag, check_output_file, command, is_dexjax_png, stamp_png
 from dexjax.objects.builtin import resolve_mesh
 from dexjax.objects.collision import cached_collision_hulls
-from dexjax.objects.folder import FolderReport, load_mesh_folder
+from dexjax.objects.folder import FolderReport, emit_warnings, load_mesh_folder
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -51,6 +53,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _check(args: argparse.Namespace) -> int:
   report = load_mesh_folder(args.dir, scale=args.scale, recursive=args.recursive)
+  emit_warnings(report.loaded)  # also on stderr, as every CLI reports warnings
   if args.json:
     print(json.dumps(report.to_json()))
   else:
@@ -60,10 +63,12 @@ def _check(args: argparse.Namespace) -> int:
 
 def _print_report(report: FolderReport, directory: str) -> None:
   """Human-readable report: a rich table when rich is installed, plain lines otherwise."""
-  rows = sorted([(os.path.relpath(o.path, directory).replace(os.sep, '/'), 'loaded',
-                  f'{o.name}: {_describe(o.mesh)}') for o in report.loaded]
+  rows = sorted([(os.path.relpath(o.path, directory).replace(os.sep, '/'), 'warning' if o.warnings else 'loaded',
+                  '; '.join([f'{o.name}: {_describe(o.mesh)}', *map(str, o.warnings)])) for o in report.loaded]
                 + [(r.file, 'rejected', r.reason) for r in report.rejected])
-  summary = f'{len(report.loaded)} loaded, {len(report.rejected)} rejected in {directory}'
+  warned = sum(1 for o in report.loaded if o.warnings)
+  summary = (f'{len(report.loaded)} loaded ({warned} with warnings), {len(report.rejected)} rejected in '
+             f'{directory}')
   try:
     from rich.console import Console
     from rich.table import Table
@@ -77,7 +82,8 @@ def _print_report(report: FolderReport, directory: str) -> None:
   for column in ('file', 'status', 'details'):
     table.add_column(column, overflow='fold')
   for file, status, detail in rows:
-    table.add_row(Text(file), Text(status, style='green' if status == 'loaded' else 'red'), Text(detail))
+    style = {'loaded': 'green', 'warning': 'yellow'}.get(status, 'red')
+    table.add_row(Text(file), Text(status, style=style), Text(detail))
   console = Console(highlight=False)
   console.print(table)
   console.print(Text(summary))

@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import warnings
 from typing import Any
 
 import numpy as np
 import trimesh
 
 from dexjax.geometry.cache import cached_object_model
-from dexjax.geometry.mesh_io import SUPPORTED_EXTENSIONS, MeshError, load_mesh
+from dexjax.geometry.mesh_io import SUPPORTED_EXTENSIONS, ImperfectMeshWarning, MeshError, ScaleWarning, load_mesh
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.objects.collision import CONVEX_SOLIDITY, cached_collision_hulls
 
@@ -40,10 +41,14 @@ class LoadedObject:
       two files differ only by extension), e.g. ``'mug'`` or ``'kitchen/mug'``.
     path: the file's path (the folder joined with the relative path).
     mesh: the repaired, watertight, outward-oriented mesh in metres (after scaling).
+    warnings: what loading warned about (warning instances; ``str()`` gives the message, which names the
+      file): an imperfect mesh loaded as the solid its winding number encloses
+      (`dexjax.geometry.ImperfectMeshWarning`), an implausible size (`dexjax.geometry.ScaleWarning`).
   """
   name: str
   path: str
   mesh: trimesh.Trimesh
+  warnings: tuple[Warning, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,9 +78,11 @@ class FolderReport:
   rejected: list[Rejection]
 
   def to_json(self) -> dict[str, Any]:
-    """``{"loaded": [names], "rejected": [{"file": file, "reason": reason}]}``."""
+    """``{"loaded": [names], "rejected": [{"file": file, "reason": reason}], "warnings": [{"name": name,
+    "warning": text}]}``."""
     return {'loaded': [o.name for o in self.loaded],
-            'rejected': [{'file': r.file, 'reason': r.reason} for r in self.rejected]}
+            'rejected': [{'file': r.file, 'reason': r.reason} for r in self.rejected],
+            'warnings': [{'name': o.name, 'warning': str(w)} for o in self.loaded for w in o.warnings]}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -147,14 +154,33 @@ def load_mesh_folder(
 
 
 def load_file(path: str, *, name: str, label: str, scale: float = 1.0) -> LoadedObject | Rejection:
-  """Loads one mesh file as object ``name``, or returns its `Rejection` (filed under ``label``); never raises."""
-  try:
-    mesh = load_mesh(path, scale=float(scale))
-  except MeshError as e:
-    return Rejection(label, e.reason)
-  except Exception as e:  # One bad file must never stop the others.
-    return Rejection(label, f'{type(e).__name__}: {e}')
-  return LoadedObject(name=name, path=path, mesh=mesh)
+  """Loads one mesh file as object ``name``, or returns its `Rejection` (filed under ``label``); never raises.
+
+  The loader's `ImperfectMeshWarning` and `ScaleWarning` are recorded in `LoadedObject.warnings` instead of
+  being emitted (`emit_warnings` emits them)."""
+  with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter('always', ImperfectMeshWarning)
+    warnings.simplefilter('always', ScaleWarning)
+    try:
+      mesh = load_mesh(path, scale=float(scale))
+    except MeshError as e:
+      return Rejection(label, e.reason)
+    except Exception as e:  # One bad file must never stop the others.
+      return Rejection(label, f'{type(e).__name__}: {e}')
+  notes = []
+  for w in caught:
+    if issubclass(w.category, (ImperfectMeshWarning, ScaleWarning)):
+      notes.append(w.message)
+    else:  # Not ours to absorb: pass it on.
+      warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+  return LoadedObject(name=name, path=path, mesh=mesh, warnings=tuple(notes))
+
+
+def emit_warnings(objects: list[LoadedObject] | tuple[LoadedObject, ...]) -> None:
+  """Emits (`warnings.warn`) the load warnings recorded in each object, e.g. for a CLI's stderr."""
+  for o in objects:
+    for w in o.warnings:
+      warnings.warn(w, stacklevel=2)
 
 
 def prepare_object(

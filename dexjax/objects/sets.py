@@ -27,7 +27,8 @@ from typing import Any
 
 from dexjax.geometry.mesh_io import MeshError
 from dexjax.objects.builtin import BUILTIN_OBJECTS, BUILTIN_PREFIX, resolve_mesh
-from dexjax.objects.folder import FolderReport, LoadedObject, PreparedObject, Rejection, load_mesh_folder
+from dexjax.objects.folder import (FolderReport, LoadedObject, PreparedObject, Rejection, emit_warnings,
+                                  load_mesh_folder)
 from dexjax.objects.folder import load_file, prepare_object
 from dexjax.objects.procedural import PROCEDURAL_LEVELS, PROCEDURAL_PREFIX, procedural_spec
 
@@ -89,6 +90,9 @@ def load_object_set(sources: Iterable[str | os.PathLike[str]], *, scale: float =
     the folder's name); ``rejected`` lists each spec, file or folder entry that failed, with the reason. A
     name seen twice is rejected the second time (``'duplicate object name ...'``).
 
+  Warns:
+    ImperfectMeshWarning, ScaleWarning: recorded while loading a file (also kept in `LoadedObject.warnings`).
+
   Raises:
     ValueError: ``scale`` is not a finite number > 0, or a procedural range is malformed (a mistake in the
       set's description rather than in one object).
@@ -108,11 +112,13 @@ def load_object_set(sources: Iterable[str | os.PathLike[str]], *, scale: float =
     elif os.path.isdir(source):
       report = load_mesh_folder(source, scale=scale, recursive=recursive)
       folder = os.path.basename(os.path.normpath(source))
-      loaded.extend(LoadedObject(name=f'{folder}/{o.name}', path=o.path, mesh=o.mesh) for o in report.loaded)
+      loaded.extend(LoadedObject(name=f'{folder}/{o.name}', path=o.path, mesh=o.mesh, warnings=o.warnings)
+                    for o in report.loaded)
       rejected.extend(Rejection(os.path.join(source, r.file), r.reason) for r in report.rejected)
     else:
       outcome = load_file(source, name=os.path.splitext(os.path.basename(source))[0], label=source, scale=scale)
       (loaded if isinstance(outcome, LoadedObject) else rejected).append(outcome)
+  emit_warnings(loaded)
   return FolderReport(loaded=_unique(loaded, rejected), rejected=rejected)
 
 
