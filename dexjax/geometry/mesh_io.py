@@ -223,8 +223,7 @@ def validate_and_repair(mesh: trimesh.Trimesh, name: str = '<mesh>') -> trimesh.
     vertices, faces = _fill_small_holes(vertices, faces)
     open_edges = int((_undirected_edge_counts(faces) == 1).sum())
     if open_edges:
-      imperfection = (f'not watertight after repair ({open_edges} open edges; holes of up to {MAX_HOLE_EDGES} '
-                      'edges are filled automatically)')
+      imperfection = f'not watertight after repair ({open_edges} open edges)'
     elif not _is_winding_consistent(faces):
       imperfection = 'faces cannot be oriented consistently (non-orientable surface)'
   if imperfection is None:
@@ -256,7 +255,7 @@ def _solid_from_soup(vertices: np.ndarray, faces: np.ndarray, name: str,
                           'below 0.75 everywhere: an open sheet?); expected a solid')
   warnings.warn(ImperfectMeshWarning(
       f"mesh '{name}': {imperfection}; loaded as the solid its generalized winding number encloses "
-      f"(surface rebuilt closed, {len(solid_faces)} faces)"), stacklevel=4)
+      '(surface rebuilt)'), stacklevel=4)
   return solid_vertices, solid_faces
 
 
