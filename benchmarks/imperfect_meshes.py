@@ -49,7 +49,8 @@ import trimesh
 from dexjax.geometry import (ImperfectMeshWarning, MeshError, build_object_model, solidify, validate_and_repair,
                              winding_signed_distance)
 from dexjax.objects import defects, resolve_mesh
-from dexjax.quality import robust_parallel_jaw_quality, robust_suction_quality
+from dexjax.grippers import ParallelJawGripper, SuctionGripper
+from dexjax.quality import evaluate_grasps, parallel_jaw_perturbations, suction_perturbations
 from dexjax.sampling import sample_antipodal_grasps, sample_suction_grasps
 
 DEFAULT_OBJECTS = ['builtin:box', 'builtin:cylinder', 'builtin:l_shape', 'builtin:box_with_hole', 'builtin:sphere',
@@ -68,14 +69,12 @@ def _defects(mesh):
   }
 
 
-@jax.jit
-def _pj_prob(model, keys, grasps):
-  return jax.vmap(lambda k, g: robust_parallel_jaw_quality(k, model, g).probability)(keys, grasps)
+def _pj_prob(model, key, grasps):
+  return evaluate_grasps(key, model, grasps, ParallelJawGripper(), parallel_jaw_perturbations()).probability
 
 
-@jax.jit
-def _suction_prob(model, keys, grasps):
-  return jax.vmap(lambda k, g: robust_suction_quality(k, model, g).probability)(keys, grasps)
+def _suction_prob(model, key, grasps):
+  return evaluate_grasps(key, model, grasps, SuctionGripper(), suction_perturbations()).probability
 
 
 def _grid_points(model):
@@ -128,8 +127,7 @@ def _labels(model_a, model_b, key, n):
       out[gripper] = {'grasps': 0}
       continue
     grasps = jax.tree.map(lambda x: x[idx], grasps)
-    keys = jax.random.split(k_q, len(idx))
-    pa, pb = np.asarray(prob(model_a, keys, grasps)), np.asarray(prob(model_b, keys, grasps))
+    pa, pb = np.asarray(prob(model_a, k_q, grasps)), np.asarray(prob(model_b, k_q, grasps))
     la, lb = pa > 0.5, pb > 0.5
     out[gripper] = {'grasps': int(len(idx)), 'agreement': float(np.mean(la == lb)),
                     'positive_rate_original': float(la.mean()), 'positive_rate_imperfect': float(lb.mean()),

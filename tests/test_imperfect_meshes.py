@@ -17,20 +17,19 @@ from dexjax.geometry import (ImperfectMeshWarning, MeshError, build_object_model
                              validate_and_repair, winding_signed_distance)
 from dexjax.geometry.winding import cached_solidify, orient_patches
 from dexjax.objects import defects, load_mesh_folder, prepare_object
-from dexjax.quality import robust_parallel_jaw_quality, robust_suction_quality
+from dexjax.grippers import ParallelJawGripper, SuctionGripper
+from dexjax.quality import evaluate_grasps, parallel_jaw_perturbations, suction_perturbations
 from dexjax.sampling import sample_antipodal_grasps, sample_suction_grasps
 
 GRID = 64  # as tests/conftest.py: shares compiled quality functions with the other tests of this worker
 
 
-@jax.jit
-def _pj_prob(model, keys, grasps):
-  return jax.vmap(lambda k, g: robust_parallel_jaw_quality(k, model, g).probability)(keys, grasps)
+def _pj_prob(model, key, grasps):
+  return evaluate_grasps(key, model, grasps, ParallelJawGripper(), parallel_jaw_perturbations()).probability
 
 
-@jax.jit
-def _suction_prob(model, keys, grasps):
-  return jax.vmap(lambda k, g: robust_suction_quality(k, model, g).probability)(keys, grasps)
+def _suction_prob(model, key, grasps):
+  return evaluate_grasps(key, model, grasps, SuctionGripper(), suction_perturbations()).probability
 
 
 def _can(sections=48, radius=0.02, height=0.09):
@@ -111,8 +110,8 @@ def test_imperfect_copies_load_with_a_warning_and_keep_their_labels(defect):
       idx = np.nonzero(np.asarray(valid))[0][:128]
       assert len(idx) >= 64, (name, gripper)
       grasps = jax.tree.map(lambda x: x[idx], grasps)
-      keys = jax.random.split(jax.random.fold_in(key, 2), len(idx))
-      same = np.asarray(prob(original, keys, grasps) > 0.5) == np.asarray(prob(imperfect, keys, grasps) > 0.5)
+      k = jax.random.fold_in(key, 2)
+      same = np.asarray(prob(original, k, grasps) > 0.5) == np.asarray(prob(imperfect, k, grasps) > 0.5)
       agreements[name, gripper] = float(same.mean())
   assert min(agreements.values()) >= 0.95, agreements
 
@@ -195,7 +194,7 @@ def test_a_folder_of_imperfect_assets_loads_and_gives_robust_grasps(tmp_path):
       grasps, valid = sampler(key, model, 512)
       idx = np.nonzero(np.asarray(valid))[0][:128]
       grasps = jax.tree.map(lambda x: x[idx], grasps)
-      robust = np.asarray(prob(model, jax.random.split(key, len(idx)), grasps)) > 0.5
+      robust = np.asarray(prob(model, key, grasps)) > 0.5
       assert robust.sum() >= 1, (obj.name, sampler.__name__, len(idx))
 
 
