@@ -3,6 +3,7 @@
 A config file is a mapping whose sections override fields of parameter dataclasses (`ParallelJawGripper`,
 `Perturbations`, ...). Every value is checked against the type of the field's default: a float field takes a
 finite number, an integer field an integer, a tuple field a list of the same length, a bool field a bool.
+A nested parameter dataclass (e.g. ``QualityConfig.geometry``) takes a mapping of its own fields.
 Anything else (an unknown section or field, a string where a number belongs, a NaN) raises `ConfigError`
 naming the file, the dotted field path and what was expected. Range checks (e.g. "positive") are the
 caller's, through ``minimum``; rules that tie fields together (``min_width <= max_width``, a friction range
@@ -74,6 +75,8 @@ def _coerce(default: Any, value: Any, source: str, field: str, minimum: float | 
     if not isinstance(value, str):
       raise ConfigError(source, field, f"expected a string, got {value!r}")
     return value
+  if dataclasses.is_dataclass(default) and not isinstance(default, type):
+    return override(default, value, source=source, section=field, minimum=minimum)
   raise ConfigError(source, field, "this field cannot be set from a config file")
 
 

@@ -33,6 +33,20 @@ class ParallelJawGripper:
       soft-finger model, gamma = (2/3) * mu * finger_radius (uniform pressure on a disc).
     num_cone_edges: static, edges of the linearised friction cone per contact (Dex-Net: 8).
     num_line_samples: static, samples along each jaw's line of action before root refinement.
+    finger_thickness: static, finger size along the jaw axis, outward from the pad, metres (1 cm). 0 means point
+      jaws (Dex-Net's model): the single-object quality and the 3-D sampler then run no volume test.
+    finger_width: static, finger (pad) size across the jaw axis and the approach, metres (2 cm).
+    finger_length: static, finger size along the approach, metres (6 cm).
+    tip_depth: static, how far the fingertips reach beyond the grasp centre along the approach, metres (1 cm).
+    palm_depth: static, palm size along the approach, behind the fingers, metres (2 cm).
+    palm_width: static, palm size along the jaw axis, metres (7 cm: the 5 cm opening plus two fingers).
+    palm_height: static, palm size across the jaw axis and the approach, metres (2 cm).
+
+  The finger and palm sizes are the collision solids of `dexjax.quality.gripper_geometry` (fingers and palm
+  swept back along the approach by the standoff), used alike by the heap reward, the single-object quality
+  (``jaw_collision``) and the antipodal sampler. Defaults: estimates for the YuMi with its silicone
+  fingertips (the seed's CAD model is not public; docs/deviations.md items 27 and 38). They are static because
+  they set sample counts: changing them recompiles.
   """
 
   max_width: float = 0.05
@@ -41,6 +55,13 @@ class ParallelJawGripper:
   finger_radius: float = 0.005
   num_cone_edges: int = struct.field(pytree_node=False, default=8)
   num_line_samples: int = struct.field(pytree_node=False, default=64)
+  finger_thickness: float = struct.field(pytree_node=False, default=0.01)
+  finger_width: float = struct.field(pytree_node=False, default=0.02)
+  finger_length: float = struct.field(pytree_node=False, default=0.06)
+  tip_depth: float = struct.field(pytree_node=False, default=0.01)
+  palm_depth: float = struct.field(pytree_node=False, default=0.02)
+  palm_width: float = struct.field(pytree_node=False, default=0.07)
+  palm_height: float = struct.field(pytree_node=False, default=0.02)
 
   def validate(self, source: str = 'ParallelJawGripper', section: str = '') -> ParallelJawGripper:
     """Returns ``self`` if the fields are consistent; raises `dexjax.config.ConfigError` (a ValueError) naming
@@ -48,6 +69,8 @@ class ParallelJawGripper:
     eagerly, on one gripper)."""
     if _not_concrete(self):
       return self
+    thickness, length = number_or_nan(self.finger_thickness), number_or_nan(self.finger_length)
+    needed = number_or_nan(self.max_width) + 2.0 * thickness
     return check_fields([
         ('max_width', number_or_nan(self.max_width) > 0, 'a number > 0 (metres)'),
         ('min_width', 0 <= number_or_nan(self.min_width) < number_or_nan(self.max_width),
@@ -56,6 +79,16 @@ class ParallelJawGripper:
         ('finger_radius', number_or_nan(self.finger_radius) >= 0, 'a number >= 0 (metres)'),
         ('num_cone_edges', self.num_cone_edges >= 3, 'an integer >= 3'),
         ('num_line_samples', self.num_line_samples >= 2, 'an integer >= 2'),
+        ('finger_thickness', thickness >= 0, 'a number >= 0 (metres; 0 = point jaws)'),
+        ('finger_width', number_or_nan(self.finger_width) > 0, 'a number > 0 (metres)'),
+        ('finger_length', length > 0, 'a number > 0 (metres)'),
+        ('tip_depth', 0 <= number_or_nan(self.tip_depth) <= length,
+         f'a number in [0, finger_length = {self.finger_length}] (metres; the pads must reach the grasp centre)'),
+        ('palm_depth', number_or_nan(self.palm_depth) > 0, 'a number > 0 (metres)'),
+        ('palm_width', number_or_nan(self.palm_width) >= needed - 1e-9,
+         f'a number >= max_width + 2 finger_thickness = {needed:.6g} (metres; the palm carries both fingers '
+         'at the widest opening)'),
+        ('palm_height', number_or_nan(self.palm_height) > 0, 'a number > 0 (metres)'),
     ], self, source=source, section=section)
 
 

@@ -104,7 +104,7 @@ _GRIPPER_SECTIONS = ('grippers', 'perturbations', 'quality')  # configs/quality.
 _TOP = ('seed', 'objects', 'dataset', 'heap', 'bin', 'settle', 'camera', 'render', 'noise', 'samplers', 'reward',
         'supervisor', 'policy') + _GRIPPER_SECTIONS
 _SAMPLERS = ('parallel_jaw', 'suction')
-_REWARD_FIELDS = ('collision_tolerance', 'suction_contact_distance', 'threshold', 'num_samples')
+_REWARD_FIELDS = ('suction_contact_distance', 'threshold', 'num_samples')
 
 
 def _section(data: Mapping[str, Any], name: str, source: str) -> dict[str, Any] | None:
@@ -171,6 +171,10 @@ def config_from_dict(data: Mapping[str, Any], source: str = '<config>') -> Gener
   samplers = _section(data, 'samplers', source) or {}
   check_sections(samplers, _SAMPLERS, source=source, section='samplers')
   reward = _section(data, 'reward', source) or {}
+  if 'collision_tolerance' in reward:
+    raise ConfigError(source, 'reward.collision_tolerance',
+                      'moved to quality.collision_tolerance (one tolerance for the heap reward, the supervisor and '
+                      'the single-object quality); write quality: {collision_tolerance: ...}')
   check_sections(reward, _REWARD_FIELDS, source=source, section='reward')
   grippers_data = {k: data[k] for k in _GRIPPER_SECTIONS if k in data}
   grippers = settings_from_config(grippers_data, source) if grippers_data else c.grippers
@@ -198,9 +202,12 @@ def config_from_dict(data: Mapping[str, Any], source: str = '<config>') -> Gener
 
 
 def _tied(config: GenerateConfig) -> GenerateConfig:
-  """Ties the parameters that must agree across stages: the jaw sampler's width is the gripper's opening."""
+  """Ties the parameters that must agree across stages: the jaw sampler's width is the gripper's opening, and the
+  reward's quality settings (wrench test, collision tolerance and sampling) are the ``quality`` section's, which
+  the supervisor uses too."""
   sampler = config.parallel_jaw_sampler.replace(gripper_width=config.grippers.parallel_jaw.max_width)
-  return dataclasses.replace(config, parallel_jaw_sampler=sampler)
+  reward = config.reward.replace(quality=config.grippers.config)
+  return dataclasses.replace(config, parallel_jaw_sampler=sampler, reward=reward)
 
 
 def with_grippers(config: GenerateConfig, path: str | os.PathLike[str]) -> GenerateConfig:

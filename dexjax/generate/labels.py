@@ -36,8 +36,10 @@ PARALLEL_JAW, SUCTION = 0, 1
 
 #: Version of the labelling semantics, part of every run's config fingerprint: bump it whenever the labels of
 #: one config change, so no cached dataset made by older code is reused. 2: the reward uses the heap state's
-#: friction per object instead of a new friction draw per Monte-Carlo sample.
-LABEL_VERSION = 2
+#: friction per object instead of a new friction draw per Monte-Carlo sample. 3: fingers with volume: the robust
+#: quality fails with ``jaw_collision`` when the open fingers or palm overlap the object (per draw), and the
+#: supervisor's grasps come from the collision-checked antipodal sampler.
+LABEL_VERSION = 3
 
 
 @struct.dataclass

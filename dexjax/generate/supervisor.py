@@ -23,12 +23,14 @@ with quality above 75 % that can be executed there.
 Parallel-jaw approach: the image grasp's approach is the optical axis, so the jaw axis a (camera frame) must be
 nearly perpendicular to it: the approach closest to the optical axis among those perpendicular to a is
 normalise(z - a_z a), at tilt arcsin |a_z| from z; candidates need tilt <= ``max_tilt``, and the executed grasp
-closes along a flattened into the image plane, (cos angle, sin angle, 0). The set's own approach is therefore
-irrelevant and is stored as the fixed perpendicular `perpendicular(axis)`. The robust parallel-jaw quality
-does not depend on it in distribution: the jaws are points closing along the axis (`close_jaws`), the friction
-cones use the contact normals, and with the default perturbations gravity is uniform on the whole sphere and the
-rotation noise is isotropic (off by default), so the approach only seeds the orientation of the gravity draws
-(different Monte-Carlo draws of the same distribution). With a gravity cone narrower than pi this no longer
+closes along a flattened into the image plane, (cos angle, sin angle, 0). The set keeps the approach the
+antipodal sampler found collision-free on the object alone (its fingers and palm have volume, so the robust
+quality's ``jaw_collision`` test depends on the approach); in the heap the executed approach is the optical
+axis, and whether the gripper fits there, against the target and every other object and the bin, is the
+collision test of step 2 (the same solids: `parallel_jaw_collisions`). Apart from that test, the robust
+quality does not depend on the approach in distribution: the jaws close along the axis (`close_jaws`), the
+friction cones use the contact normals, and with the default perturbations gravity is uniform on the whole
+sphere and the rotation noise is isotropic (off by default). With a gravity cone narrower than pi this no longer
 holds; such perturbations are not meaningful for the supervisor.
 """
 
@@ -48,7 +50,7 @@ from flax import struct
 
 from dexjax.geometry.cache import atomic_write_npz, content_key, default_cache_dir
 from dexjax.geometry.object_model import ObjectModel
-from dexjax.geometry.transforms import normalize, perpendicular, quat_to_matrix
+from dexjax.geometry.transforms import normalize, quat_to_matrix
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality import robust
@@ -68,8 +70,9 @@ __all__ = [
     'suction_supervisor_candidates', 'choose_supervisor_grasp',
 ]
 
-SUPERVISOR_CACHE_FORMAT: int = 1
-"""Bump when the stored grasp sets or the way they are computed change; old cache entries are then ignored."""
+SUPERVISOR_CACHE_FORMAT: int = 2
+"""Bump when the stored grasp sets or the way they are computed change; old cache entries are then ignored.
+2: fingers with volume (collision-checked approaches, ``jaw_collision`` in the robust quality)."""
 
 _MODEL_FIELDS = tuple(f.name for f in dataclasses.fields(ObjectModel))
 
@@ -133,11 +136,10 @@ def _quality_keys(key: jax.Array, num_grasps: int) -> jax.Array:
 
 
 @jax.jit
-def _sample_jaw_set(key, model, gripper, params):
+def _sample_jaw_set(key, model, gripper, params, config):
   """(grasps, valid, quality keys) of `parallel_jaw_grasp_set`."""
   k_sample, k_quality = jax.random.split(key)
-  grasps, valid = sample_antipodal_grasps(k_sample, model, params.num_grasps, gripper, params.sampler)
-  grasps = grasps.replace(approach=jax.vmap(perpendicular)(grasps.axis))
+  grasps, valid = sample_antipodal_grasps(k_sample, model, params.num_grasps, gripper, params.sampler, config)
   return grasps, valid, _quality_keys(k_quality, params.num_grasps)
 
 
@@ -176,12 +178,14 @@ def parallel_jaw_grasp_set(key: jax.Array, model: ObjectModel, gripper: Parallel
 
   ``key`` splits into (sampling key, quality key); grasp i's quality is `robust_parallel_jaw_quality` with key
   ``fold_in(quality key, i)`` and ``perturbations`` (default `parallel_jaw_perturbations`) with ``num_samples``
-  replaced by ``params.num_samples``. The approach of each grasp is `perpendicular(axis)` (see the module doc).
+  replaced by ``params.num_samples``. The approach of each grasp is the sampler's collision-free one (see the
+  module doc); ``config`` also sets the sampler's collision test.
 
   Runs eagerly (not under `jax.jit`): a compiled sampler, then the compiled robust quality grasp by grasp.
   """
   pert = _supervisor_perturbations(perturbations, robust.parallel_jaw_perturbations, params)
-  return _robust_set(_sample_jaw_set(key, model, gripper, params), model, _jaw_quality, gripper, pert, config)
+  return _robust_set(_sample_jaw_set(key, model, gripper, params, config), model, _jaw_quality, gripper, pert,
+                     config)
 
 
 def suction_grasp_set(key: jax.Array, model: ObjectModel, gripper: SuctionGripper = SuctionGripper(),
@@ -417,8 +421,9 @@ def parallel_jaw_supervisor_candidates(
     camera: the camera of the image.
     mask: (H, W) int32 rendered segmentation: slot index, -1 bin or table, -2 invalid.
     params: supervisor settings.
-    gripper: the parallel-jaw gripper (collision geometry comes from ``reward_params.geometry``).
-    reward_params: collision geometry and tolerance, shared with the heap reward.
+    gripper: the parallel-jaw gripper (its finger and palm sizes are the collision solids).
+    reward_params: the heap reward's settings; ``reward_params.quality`` gives the collision tolerance and
+      sampling, shared with the heap reward.
     key: with a PRNG key, the collision test runs on ``params.max_checked`` grasps drawn uniformly among
       those passing the other tests (the rest are not eligible); None tests all P K.
 

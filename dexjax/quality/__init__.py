@@ -8,7 +8,7 @@ from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_
                                    perturb_parallel_jaw_grasp, perturb_suction_grasp, robust_parallel_jaw_quality,
                                    robust_suction_quality, sample_conditions, suction_perturbations,
                                    with_known_friction)
-from dexjax.quality.gripper_geometry import GripperGeometry
+from dexjax.quality.gripper_geometry import GripperGeometry, jaw_collides, jaw_collision_points
 from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, RewardParams, RewardRecord, heap_grasp_reward,
                                         parallel_jaw_collisions, parallel_jaw_heap_reward, stack_models,
                                         suction_collisions, suction_heap_reward)
@@ -20,7 +20,8 @@ __all__ = [
     "SUPERVISOR_SAMPLES", "SUPERVISOR_THRESHOLD", "Perturbations", "RobustQuality", "nominal_conditions",
     "parallel_jaw_perturbations", "perturb_parallel_jaw_grasp", "perturb_suction_grasp",
     "robust_parallel_jaw_quality", "robust_suction_quality", "sample_conditions", "suction_perturbations", "with_known_friction",
-    "NNLSResult", "lift_bounded_groups", "nnls", "resists", "wrench_residual", "GripperGeometry", "REWARD_FAILURES",
+    "NNLSResult", "lift_bounded_groups", "nnls", "resists", "wrench_residual", "GripperGeometry", "jaw_collides",
+    "jaw_collision_points", "REWARD_FAILURES",
     "HeapScene", "RewardParams", "RewardRecord", "heap_grasp_reward", "parallel_jaw_collisions",
     "parallel_jaw_heap_reward", "stack_models", "suction_collisions", "suction_heap_reward",
 ]

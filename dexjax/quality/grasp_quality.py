@@ -19,6 +19,7 @@ from dexjax.contacts.suction import suction_seal, suction_wrenches
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import STANDARD_GRAVITY, ParallelJawGripper, SuctionGripper
+from dexjax.quality.gripper_geometry import GripperGeometry, jaw_collides
 from dexjax.quality.wrench import wrench_residual
 
 #: Names of the failure codes in `GraspOutcome.failure` (index = code).
@@ -45,18 +46,26 @@ class Conditions:
 
 @struct.dataclass
 class QualityConfig:
-  """Numerical settings of the wrench-resistance test.
+  """Numerical settings of the quality tests: wrench resistance and gripper collisions.
 
   Attributes:
     torque_scale: 1/m, multiplies torque rows so that residuals are in newtons (100: 1 N m counts as 100 N,
       i.e. torques are measured as forces at a 1 cm lever).
     tolerance: a grasp resists when the residual is at most this, newtons.
     gravity_acceleration: m/s^2.
+    collision_tolerance: a gripper solid collides when it reaches more than this deep into an object, metres
+      (1 mm). The one knob of every gripper collision test: the single-object ``jaw_collision``, the
+      antipodal sampler's approach search and the heap reward (object, bin and closing-region tests, via
+      ``RewardParams.quality``).
+    geometry: how the gripper solids are sampled (spacing, standoff along the approach, suction shaft); the
+      jaw sizes are fields of `dexjax.grippers.ParallelJawGripper`.
   """
 
   torque_scale: float = 100.0
   tolerance: float = 1e-3
   gravity_acceleration: float = STANDARD_GRAVITY
+  collision_tolerance: float = 1e-3
+  geometry: GripperGeometry = GripperGeometry()
 
 
 @struct.dataclass
@@ -94,21 +103,31 @@ def _outcome(residual, checks, config: QualityConfig) -> GraspOutcome:
 
 
 def parallel_jaw_quality(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJawGripper,
-                         conditions: Conditions, config: QualityConfig = QualityConfig()) -> GraspOutcome:
+                         conditions: Conditions, config: QualityConfig = QualityConfig(),
+                         jaw_samples: jax.Array | None = None) -> GraspOutcome:
   """Soft-finger wrench resistance of a parallel-jaw grasp (object frame).
 
-  Fails with ``no_contact`` when a jaw closes without meeting the object, ``jaw_collision`` when the open
-  jaws already overlap it, ``slip`` when a line of action leaves its friction cone, and ``not_resisted`` when
-  no admissible finger forces (within friction and the per-finger force limit) balance the external wrench.
+  Fails, in this order, with ``jaw_collision`` when the open gripper does not fit: a jaw's start point is inside
+  the object, or (fingers with volume, ``gripper.finger_thickness > 0``) a sample of the open fingers or the
+  palm at the grasp pose, or on the approach path behind it (swept back by ``config.geometry.standoff``), lies
+  more than ``config.collision_tolerance`` inside the object (`dexjax.quality.gripper_geometry.jaw_collides`);
+  ``no_contact`` when a jaw closes without meeting the object; ``slip`` when a line of action leaves its
+  friction cone; and ``not_resisted`` when no admissible finger forces (within friction and the per-finger
+  force limit) balance the external wrench. With ``finger_thickness = 0`` the jaws are points (Dex-Net's
+  model) and only their start points are tested.
+
+  ``jaw_samples``: indices of the collision samples to test (default: all of them); the robust quality passes
+  the `nearest_jaw_samples` of the nominal pose for its perturbed draws.
   """
   contacts = close_jaws(model, grasp, gripper)
+  body_collides = jaw_collides(model, grasp, gripper, config.geometry, config.collision_tolerance, jaw_samples)
   in_cone = jax.vmap(in_friction_cone, in_axes=(0, 0, None))(contacts.normals, contacts.directions,
                                                              conditions.friction)
   wrenches, groups, limits = soft_finger_wrenches(contacts, model.center_of_mass, conditions.friction, gripper,
                                                   config.torque_scale)
   target = -_scale_torques(external_wrench(conditions, config), config.torque_scale)
   residual = wrench_residual(wrenches, target, groups, limits)
-  checks = [(jnp.any(contacts.collision), JAW_COLLISION), (~jnp.all(contacts.found), NO_CONTACT),
+  checks = [(jnp.any(contacts.collision) | body_collides, JAW_COLLISION), (~jnp.all(contacts.found), NO_CONTACT),
             (~jnp.all(in_cone), SLIP)]
   return _outcome(residual, checks, config)
 

@@ -3,13 +3,14 @@
 S = 1 iff, in this order of checks (the first failing one names the `RewardRecord.failure`):
 
 1. ``collision_object`` / ``collision_bin``: no sample point of the gripper's collision geometry
-   (`dexjax.quality.gripper_geometry`: fingers and palm, or cup and shaft, swept back along the approach by
-   the standoff) lies deeper than ``collision_tolerance`` inside any heap object (its signed distance grid,
+   (`dexjax.quality.gripper_geometry`: fingers and palm with the sizes of the `ParallelJawGripper`, or cup and
+   shaft, swept back along the approach by the standoff) lies deeper than ``quality.collision_tolerance``
+   (`QualityConfig`, the one collision tolerance of the library) inside any heap object (its signed distance grid,
    queried in the object's frame) or the bin (below the floor z = 0, or inside a wall box of
    `dexjax.sim.bin_boxes`). The surfaces meant to touch (finger pads, cup lip) are not sampled. This check
    alone is `parallel_jaw_collisions` / `suction_collisions` (also used by the supervisor).
 2. ``no_object`` / ``multiple_objects``: exactly one object is contacted. Parallel jaw: an object is contacted
-   when it reaches more than ``collision_tolerance`` into the closing region between the pads (the jaws would
+   when it reaches more than ``quality.collision_tolerance`` into the closing region between the pads (the jaws would
    squeeze it). Suction: when its surface comes within ``suction_contact_distance`` of the cup's mouth disc.
    The target is the contacted object under the grasp centre (smallest signed distance at the centre for the
    jaws, smallest absolute distance for suction); ``target_slot`` is -1 when nothing is contacted.
@@ -45,8 +46,8 @@ from dexjax.geometry.transforms import quat_to_matrix
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.grasp_quality import QualityConfig
-from dexjax.quality.gripper_geometry import (GripperGeometry, jaw_collision_points, jaw_contact_points,
-                                             suction_collision_points, suction_contact_points, to_world)
+from dexjax.quality.gripper_geometry import (jaw_collision_points, jaw_contact_points, suction_collision_points,
+                                             suction_contact_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
                                    robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations,
                                    with_known_friction)
@@ -88,17 +89,15 @@ class RewardParams:
   """Settings of the heap reward (defaults: Dex-Net 4.0).
 
   Attributes:
-    geometry: the gripper's collision geometry.
-    collision_tolerance: a sample point collides when it is more than this deep inside a solid, metres (1 mm).
     suction_contact_distance: the cup contacts an object whose surface is within this of the mouth disc,
       metres (2 mm).
     threshold: the grasp is robust when the probability exceeds this (strictly).
     num_samples: static Monte-Carlo draws M of the robust quality.
-    quality: numerical settings of the wrench-resistance test.
+    quality: numerical settings of the quality tests: the wrench-resistance test of the target and the gripper
+      collision tests (``quality.collision_tolerance``, 1 mm; ``quality.geometry``: sample spacing, standoff,
+      suction shaft). The jaw sizes come from the `ParallelJawGripper`.
   """
 
-  geometry: GripperGeometry = GripperGeometry()
-  collision_tolerance: float = 1e-3
   suction_contact_distance: float = 2e-3
   threshold: float = REWARD_THRESHOLD
   num_samples: int = struct.field(pytree_node=False, default=REWARD_SAMPLES)
@@ -218,13 +217,14 @@ def parallel_jaw_collisions(grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin
                             params: RewardParams = RewardParams()) -> tuple[jax.Array, jax.Array]:
   """Check 1 of the reward for one world-frame parallel-jaw grasp: (hit_object, hit_bin), () bools.
 
-  True when a sample of the fingers and palm (at the grasp's ``width``, swept back by the standoff; sizes from
-  ``params.geometry``, not from ``gripper``, which is accepted for symmetry with `suction_collisions`) lies
-  more than ``params.collision_tolerance`` inside any heap object, or inside the bin (`bin_collision`).
+  True when a sample of the fingers and palm (`jaw_collision_points`: the sizes of ``gripper``, the grasp's
+  ``width``, swept back by the standoff of ``params.quality.geometry``) lies more than
+  ``params.quality.collision_tolerance`` inside any heap object, or inside the bin (`bin_collision`). These are
+  the points the single-object quality tests (`dexjax.quality.gripper_geometry.jaw_collides`, which adds a
+  refinement step per point).
   """
-  del gripper  # The jaw solids come from params.geometry and the grasp's width.
-  tol = params.collision_tolerance
-  body = to_world(parallel_jaw_pose(grasp), jaw_collision_points(params.geometry, grasp.width))
+  tol = params.quality.collision_tolerance
+  body = to_world(parallel_jaw_pose(grasp), jaw_collision_points(gripper, params.quality.geometry, grasp.width))
   return jnp.any(slot_distances(scene, body) < -tol), bin_collision(body, bin_, tol)
 
 
@@ -235,9 +235,9 @@ def suction_collisions(grasp: SuctionGrasp, scene: HeapScene, bin_: Bin, gripper
   As `parallel_jaw_collisions` for the cup (``gripper.cup_radius`` and ``cone_height``, without the lip slab)
   and the tool shaft.
   """
-  tol = params.collision_tolerance
+  tol = params.quality.collision_tolerance
   body = to_world(suction_pose(grasp),
-                  suction_collision_points(params.geometry, gripper.cup_radius, gripper.cone_height))
+                  suction_collision_points(params.quality.geometry, gripper.cup_radius, gripper.cone_height))
   return jnp.any(slot_distances(scene, body) < -tol), bin_collision(body, bin_, tol)
 
 
@@ -257,9 +257,9 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
     perturbations: robust-quality noise (default `parallel_jaw_perturbations`); its gravity is replaced by
       the world's and its friction by the target's ``scene.friction``.
   """
-  tol = params.collision_tolerance
+  tol = params.quality.collision_tolerance
   hit_object, hit_bin = parallel_jaw_collisions(grasp, scene, bin_, gripper, params)
-  closing = to_world(parallel_jaw_pose(grasp), jaw_contact_points(params.geometry, grasp.width))
+  closing = to_world(parallel_jaw_pose(grasp), jaw_contact_points(gripper, params.quality.geometry, grasp.width))
   contacted = jnp.min(slot_distances(scene, closing), axis=1) < -tol
   target = _select_target(contacted, slot_distances(scene, grasp.center[None])[:, 0])
   obj_pose = scene.poses[jnp.maximum(target, 0)]
@@ -280,7 +280,7 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   by the world's, friction by the target's).
   """
   hit_object, hit_bin = suction_collisions(grasp, scene, bin_, gripper, params)
-  mouth = to_world(suction_pose(grasp), suction_contact_points(params.geometry, gripper.cup_radius))
+  mouth = to_world(suction_pose(grasp), suction_contact_points(params.quality.geometry, gripper.cup_radius))
   contacted = jnp.min(slot_distances(scene, mouth), axis=1) < params.suction_contact_distance
   target = _select_target(contacted, jnp.abs(slot_distances(scene, grasp.center[None])[:, 0]))
   obj_pose = scene.poses[jnp.maximum(target, 0)]

@@ -21,7 +21,7 @@ from dexjax.quality.batched import evaluate_grasps
 from dexjax.quality.grasp_json import grasp_record, parse_grasps, stack_parallel_jaw, stack_suction
 from dexjax.quality.grasp_quality import FAILURE_REASONS, QualityConfig
 from dexjax.quality.robust import Perturbations, parallel_jaw_perturbations, suction_perturbations
-from dexjax.sampling.object_samplers import sample_antipodal_grasps, sample_suction_grasps
+from dexjax.sampling.object_samplers import AntipodalSampler, sample_antipodal_grasps, sample_suction_grasps
 
 _sample_pj = jax.jit(sample_antipodal_grasps, static_argnums=2)
 _sample_suction = jax.jit(sample_suction_grasps, static_argnums=2)
@@ -101,8 +101,11 @@ def validate_settings(settings: ReportSettings, source: str = "<settings>") -> R
     validate_perturbations(settings.perturbations(name), source=source, section=f"perturbations.{name}")
   check_fields([("tolerance", settings.config.tolerance > 0, "a number > 0 (newtons)"),
                 ("torque_scale", settings.config.torque_scale > 0, "a number > 0 (1/m)"),
-                ("gravity_acceleration", settings.config.gravity_acceleration >= 0, "a number >= 0 (m/s^2)")],
+                ("gravity_acceleration", settings.config.gravity_acceleration >= 0, "a number >= 0 (m/s^2)"),
+                ("collision_tolerance", settings.config.collision_tolerance >= 0,
+                 "a number >= 0 (metres a gripper solid may reach into an object)")],
                settings.config, source=source, section="quality")
+  settings.config.geometry.validate(source, "quality.geometry")
   return settings
 
 
@@ -116,7 +119,7 @@ def sample_grasps(key: jax.Array, model: ObjectModel, gripper: str, num_grasps: 
   """Samples up to ``num_grasps`` valid grasps of one gripper type (4x candidates, first valid ones kept)."""
   budget = max(64, 4 * num_grasps)
   if gripper == "parallel_jaw":
-    grasps, valid = _sample_pj(key, model, budget, settings.parallel_jaw)
+    grasps, valid = _sample_pj(key, model, budget, settings.parallel_jaw, AntipodalSampler(), settings.config)
   else:
     grasps, valid = _sample_suction(key, model, budget, settings.suction)
   keep = np.flatnonzero(np.asarray(valid))[:num_grasps]

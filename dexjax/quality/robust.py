@@ -29,6 +29,7 @@ from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.grasp_quality import (Conditions, GraspOutcome, QualityConfig, parallel_jaw_quality,
                                           suction_quality)
+from dexjax.quality.gripper_geometry import NEAREST_SAMPLES, nearest_jaw_samples
 
 #: Dex-Net 4.0 sample counts and probability thresholds.
 REWARD_SAMPLES, SUPERVISOR_SAMPLES = 10, 25
@@ -162,9 +163,18 @@ def robust_parallel_jaw_quality(key: jax.Array, model: ObjectModel, grasp: Paral
                                 gripper: ParallelJawGripper = ParallelJawGripper(),
                                 perturbations: Perturbations | None = None,
                                 config: QualityConfig = QualityConfig()) -> RobustQuality:
-  """Probability that a parallel-jaw grasp resists gravity plus a random disturbance (Dex-Net 4.0)."""
+  """Probability that a parallel-jaw grasp resists gravity plus a random disturbance (Dex-Net 4.0).
+
+  Every draw runs the whole `parallel_jaw_quality`, including ``jaw_collision`` at the draw's perturbed pose
+  (the pose noise moves the fingers): the gripper's collision samples are ranked once by their distance to
+  the object at the nominal pose, and the ``NEAREST_SAMPLES`` (64) nearest are tested at every draw's pose
+  (`nearest_jaw_samples`; with point jaws nothing is tested).
+  """
   perturbations = parallel_jaw_perturbations() if perturbations is None else perturbations
-  evaluate = lambda g, c: parallel_jaw_quality(model, g, gripper, c, config)
+  samples = None
+  if gripper.finger_thickness > 0:
+    samples = nearest_jaw_samples(model, grasp, gripper, config.geometry, NEAREST_SAMPLES)
+  evaluate = lambda g, c: parallel_jaw_quality(model, g, gripper, c, config, samples)
   return _robust(key, grasp, perturbations, perturb_parallel_jaw_grasp, evaluate)
 
 
