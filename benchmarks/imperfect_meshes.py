@@ -2,7 +2,7 @@
 closed originals? One JSON object on stdout.
 
   python benchmarks/imperfect_meshes.py [--objects builtin:box builtin:cylinder ...] [--grasps 400]
-                                        [--grid-size 64] [--seed 0]
+                                        [--grid-size 64] [--seed 0] [--defects holes fins ...] [--no-grids]
 
 For every object (default: the built-in shapes and procedural objects of levels 1-3):
 
@@ -15,12 +15,13 @@ For every object (default: the built-in shapes and procedural objects of levels 
   ``winding_vs_pseudonormal``: `winding_signed_distance` of the closed mesh against libigl's pseudonormal
   signed distance at the same grid points (same magnitudes; the fraction of signs that agree);
 * **labels**: imperfect copies of the mesh subdivided to edges of at most 1/25 of its extent (as assets are
-  tessellated; `dexjax.objects.defects`: two large holes, a missing side, a seam gap, six
-  non-manifold fins, holes with 30 % of faces flipped) are loaded with `validate_and_repair` like a file, built
-  at ``--grid-size``, and ``--grasps`` antipodal and suction grasps sampled on the original are labelled
-  robust (M = 10, threshold 0.5, the same keys) on both; reported: the fraction of labels that agree, the
-  positive rates, and the mean |probability difference| (a copy that no longer encloses a volume is reported
-  as ``rejected`` with the reason; a gripper without valid grasps on the object has ``grasps: 0``);
+  tessellated; `dexjax.objects.defects`: two large holes, a missing side, a seam gap, six non-manifold fins, a
+  double wall of duplicated faces, holes with 30 % of faces flipped) are loaded with `validate_and_repair`
+  like a file, built at ``--grid-size``, and ``--grasps`` antipodal and suction grasps sampled on the original
+  are labelled robust (M = 10, threshold 0.5, the same keys) on both; reported: the fraction of labels that
+  agree, the positive rates, and the mean |probability difference| (a copy that no longer encloses a volume
+  is reported as ``rejected`` with the reason; a gripper without valid grasps on the object has
+  ``grasps: 0``); ``--defects`` and ``--no-grids`` run a subset;
 * ``solidify_s``: seconds to load each copy, solidifying included (run with an empty ``$DEXJAX_CACHE``: solids
   are cached by content).
 
@@ -65,6 +66,7 @@ def _defects(mesh):
       'missing_side': defects.remove_facing(mesh, (0.0, 0.0, 1.0), 30.0),
       'seam': defects.split_seam(mesh, axis=0),
       'fins': defects.add_fins(mesh, num_fins=6, seed=1),
+      'duplicated': defects.duplicate_faces(mesh, fraction=0.2, seed=1),
       'holes_flipped': defects.flip_faces(defects.open_holes(mesh, num_holes=2, radius=0.15, seed=2), 0.3, seed=2),
   }
 
@@ -141,15 +143,21 @@ def main() -> None:
   p.add_argument('--grasps', type=int, default=400)
   p.add_argument('--grid-size', type=int, default=64)
   p.add_argument('--seed', type=int, default=0)
+  p.add_argument('--defects', nargs='+', default=None, help='only these kinds of defect (default: all)')
+  p.add_argument('--no-grids', action='store_true', help='skip the watertight grid comparison')
   args = p.parse_args()
   result = {'benchmark': 'imperfect_meshes', 'grid_size': args.grid_size, 'grasps': args.grasps,
             'machine': {'cpus': os.cpu_count(), 'python': platform.python_version()}, 'objects': {}}
   key = jax.random.key(args.seed)
   for spec in args.objects:
     mesh, _ = resolve_mesh(spec)
-    entry = {'faces': int(len(mesh.faces)), 'watertight': _grid_comparison(mesh, args.grid_size), 'defects': {}}
+    entry = {'faces': int(len(mesh.faces)), 'defects': {}}
+    if not args.no_grids:
+      entry['watertight'] = _grid_comparison(mesh, args.grid_size)
     original = build_object_model(mesh, grid_size=args.grid_size)
     for name, broken in _defects(mesh).items():
+      if args.defects and name not in args.defects:
+        continue
       t = time.perf_counter()
       with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always', ImperfectMeshWarning)

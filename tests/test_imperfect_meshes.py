@@ -87,7 +87,7 @@ def test_patches_wound_the_wrong_way_are_turned_outward():
   assert np.mean(np.einsum('ij,ij->i', oriented.face_normals, radial) > 0) > 0.99
 
 
-@pytest.mark.parametrize('defect', ['holes', 'missing_side', 'seam', 'fins', 'holes_flipped'])
+@pytest.mark.parametrize('defect', ['holes', 'missing_side', 'seam', 'fins', 'duplicated', 'holes_flipped'])
 def test_imperfect_copies_load_with_a_warning_and_keep_their_labels(defect):
   key = jax.random.key(7)
   agreements = {}
@@ -97,6 +97,7 @@ def test_imperfect_copies_load_with_a_warning_and_keep_their_labels(defect):
         'missing_side': lambda m: defects.remove_facing(m, (0.0, 0.0, 1.0), 30.0),
         'seam': lambda m: defects.split_seam(m, axis=0),
         'fins': lambda m: defects.add_fins(m, num_fins=6, seed=1),
+        'duplicated': lambda m: defects.duplicate_faces(m, fraction=0.2, seed=1),
         'holes_flipped': lambda m: defects.flip_faces(defects.open_holes(m, 2, 0.1, seed=2), 0.3, seed=2),
     }[defect](mesh)
     solid = _load(broken, f'{name}-{defect}.obj')

@@ -10,6 +10,7 @@ solid its generalized winding number encloses, with an `ImperfectMeshWarning`):
 * `split_seam`: a seam that does not close, the vertices on one side of a plane moved apart by a tiny gap
   (what unit conversion or UV splitting does to an exported mesh);
 * `add_fins`: non-manifold edges, thin internal fins attached to existing edges (a third face per edge);
+* `duplicate_faces`: a double wall, copies of some faces just inside the surface with their own vertices;
 * `flip_faces`: random faces wound the wrong way.
 """
 
@@ -78,6 +79,21 @@ def add_fins(mesh: trimesh.Trimesh, num_fins: int = 6, depth: float = 0.1, seed:
   return _copy(np.concatenate([vertices, tips]), np.concatenate([np.asarray(mesh.faces), fins]))
 
 
+def duplicate_faces(mesh: trimesh.Trimesh, fraction: float = 0.2, offset: float = 1e-4,
+                    seed: int = 0) -> trimesh.Trimesh:
+  """Adds a copy of a random ``fraction`` of the faces, with vertices of their own moved ``offset`` x (largest
+  extent) inward along the vertex normals, wound the other way round (a double wall, as CAD exports with
+  duplicated bodies have); the copies leave open boundaries and a second sheet inside the solid."""
+  rng = np.random.default_rng(seed)
+  faces = np.asarray(mesh.faces, np.int64)
+  chosen = faces[rng.random(len(faces)) < fraction]
+  used, inverse = np.unique(chosen, return_inverse=True)
+  vertices = np.asarray(mesh.vertices, np.float64)
+  moved = vertices[used] - offset * float(np.max(mesh.extents)) * np.asarray(mesh.vertex_normals)[used]
+  copies = (len(vertices) + inverse.reshape(-1, 3))[:, ::-1]
+  return _copy(np.concatenate([vertices, moved]), np.concatenate([faces, copies]))
+
+
 def flip_faces(mesh: trimesh.Trimesh, fraction: float = 0.3, seed: int = 0) -> trimesh.Trimesh:
   """Reverses the winding of a random ``fraction`` of the faces."""
   rng = np.random.default_rng(seed)
@@ -87,4 +103,4 @@ def flip_faces(mesh: trimesh.Trimesh, fraction: float = 0.3, seed: int = 0) -> t
   return _copy(mesh.vertices, faces)
 
 
-__all__ = ['add_fins', 'flip_faces', 'open_holes', 'remove_facing', 'split_seam']
+__all__ = ['add_fins', 'duplicate_faces', 'flip_faces', 'open_holes', 'remove_facing', 'split_seam']
