@@ -82,26 +82,33 @@ def orient_patches(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
   centroids = np.asarray(mesh.triangles_center)
   areas = np.asarray(mesh.area_faces)
   scale = float(np.max(mesh.extents)) or 1.0
-  intersector = trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
+  intersector = mesh.ray  # Embree (embreex) when installed, else trimesh's rtree-based tracer
   rng = np.random.default_rng(0)
   centre = np.average(centroids, axis=0, weights=np.maximum(areas, 1e-300))
-  flip = np.zeros(num_patches, bool)
-  for patch in range(num_patches):
-    idx = np.nonzero(labels == patch)[0]
-    weights = areas[idx]
-    if weights.sum() <= 0:
-      continue
-    chosen = rng.choice(idx, size=min(_VOTE_FACES, len(idx)), replace=False, p=weights / weights.sum())
-    escapes = []
-    for side in (1.0, -1.0):
+  # Sample faces per patch: up to _VOTE_FACES of its faces with positive area, area-weighted (zero-area
+  # slivers have no normal to vote with). All rays of all patches go to the ray tracer in one call.
+  chosen, owner = [], []
+  for patch, idx in enumerate(np.split(np.argsort(labels, kind='stable'),
+                                       np.cumsum(np.bincount(labels, minlength=num_patches))[:-1])):
+    sized = idx[areas[idx] > 0]
+    if len(sized):
+      weights = areas[sized] / areas[sized].sum()
+      pick = rng.choice(sized, size=min(_VOTE_FACES, len(sized)), replace=False, p=weights)
+      chosen.append(pick)
+      owner.append(np.full(len(pick), patch))
+  escapes = np.zeros((2, num_patches))
+  if chosen:
+    chosen, owner = np.concatenate(chosen), np.concatenate(owner)
+    for row, side in enumerate((1.0, -1.0)):
       dirs = side * normals[chosen][:, None, :] + 0.9 * _unit_vectors(rng, (len(chosen), _VOTE_RAYS))
       dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
       origins = np.repeat(centroids[chosen], _VOTE_RAYS, axis=0) + 1e-6 * scale * dirs.reshape(-1, 3)
-      escapes.append(int((~intersector.intersects_any(origins, dirs.reshape(-1, 3))).sum()))
-    if escapes[0] != escapes[1]:
-      flip[patch] = escapes[1] > escapes[0]
-    else:  # Enclosed (or undecided): turn the patch away from the centroid of the whole mesh.
-      flip[patch] = float(np.sum(weights[:, None] * normals[idx] * (centroids[idx] - centre))) < 0.0
+      escaped = ~intersector.intersects_any(origins, dirs.reshape(-1, 3))
+      escapes[row] = np.bincount(np.repeat(owner, _VOTE_RAYS), weights=escaped, minlength=num_patches)
+  # Enclosed (or undecided) patches: turned away from the centroid of the whole mesh.
+  away = np.bincount(labels, weights=areas * np.einsum('ij,ij->i', normals, centroids - centre),
+                     minlength=num_patches)
+  flip = np.where(escapes[0] != escapes[1], escapes[1] > escapes[0], away < 0.0)
   faces = faces.copy()
   flipped = flip[labels]
   faces[flipped] = faces[flipped][:, ::-1]
