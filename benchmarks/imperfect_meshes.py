@@ -40,6 +40,7 @@ import platform
 import sys
 import time
 import warnings
+import zlib
 
 import igl
 import jax
@@ -173,7 +174,7 @@ def main() -> None:
       entry['defects'][name] = {
           'warned': any(issubclass(w.category, ImperfectMeshWarning) for w in caught),
           'solidify_s': round(seconds, 3), 'volume_ratio': float(solid.volume / mesh.volume),
-          **_labels(original, model, jax.random.fold_in(key, hash(name) % 1000), args.grasps)}
+          **_labels(original, model, jax.random.fold_in(key, zlib.crc32(name.encode())), args.grasps)}
       print(f'{spec} {name}: {json.dumps(entry["defects"][name])}', file=sys.stderr)
     result['objects'][spec] = entry
   for gripper in ('parallel_jaw', 'suction'):
