@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 import trimesh
 
-from dexjax.geometry import (ImperfectMeshWarning, MeshError, build_object_model, solidify, validate_and_repair,
+from dexjax.geometry import (ImperfectMeshWarning, MeshError, build_object_model, grid_frame, solidify, validate_and_repair,
                              winding_signed_distance)
 from dexjax.objects import defects, resolve_mesh
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
@@ -88,12 +88,9 @@ def _grid_points(model):
   return g.reshape(-1, 3)
 
 
-def _grid_comparison(mesh, grid_size):
-  original = build_object_model(mesh, grid_size=grid_size)
+def _grid_comparison(mesh, original, grid_size):
   v, f = solidify(mesh.vertices, mesh.faces)
   rebuilt_mesh = validate_and_repair(trimesh.Trimesh(v, f, process=False))
-  # Same grid frame needs the same bounds: build on the rebuilt mesh, then compare at the original's points.
-  rebuilt = build_object_model(rebuilt_mesh, grid_size=grid_size)
   points = _grid_points(original)
   a = np.asarray(original.sdf, np.float64).reshape(-1)
   dist, *_ = igl.signed_distance(points, np.asarray(rebuilt_mesh.vertices, np.float64),
@@ -106,7 +103,7 @@ def _grid_comparison(mesh, grid_size):
   return {
       'rebuilt_faces': int(len(rebuilt_mesh.faces)),
       'volume_ratio': float(rebuilt_mesh.volume / mesh.volume),
-      'rebuilt_grid_frame_voxel_ratio': float(rebuilt.voxel_size / original.voxel_size),
+      'rebuilt_grid_frame_voxel_ratio': grid_frame(rebuilt_mesh.bounds, grid_size, 5)[1] / float(original.voxel_size),
       'max_abs_diff_voxels_near_surface': float(diff[near].max()),
       'p99_abs_diff_voxels_near_surface': float(np.quantile(diff[near], 0.99)),
       'max_abs_diff_voxels': float(diff.max()),
@@ -153,9 +150,9 @@ def main() -> None:
   for spec in args.objects:
     mesh, _ = resolve_mesh(spec)
     entry = {'faces': int(len(mesh.faces)), 'defects': {}}
-    if not args.no_grids:
-      entry['watertight'] = _grid_comparison(mesh, args.grid_size)
     original = build_object_model(mesh, grid_size=args.grid_size)
+    if not args.no_grids:
+      entry['watertight'] = _grid_comparison(mesh, original, args.grid_size)
     for name, broken in _defects(mesh).items():
       if args.defects and name not in args.defects:
         continue

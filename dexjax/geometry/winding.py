@@ -150,9 +150,10 @@ def solidify(vertices: np.ndarray, faces: np.ndarray, *, resolution: int = RESOL
   counts += 1 - counts % 2  # odd: the coarse grid (every other point) ends on the fine grid's last point
   centre = 0.5 * (lo + hi)
   axes = [centre[i] + voxel * (np.arange(counts[i]) - 0.5 * (counts[i] - 1)) for i in range(3)]
-  signed, max_winding = _signed_grid(vertices, faces, axes, voxel)
+  fine = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1)
+  signed, max_winding = _signed_grid(vertices, faces, fine, voxel)
   # libigl's marching cubes takes the grid with x varying fastest.
-  grid = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).transpose(2, 1, 0, 3).reshape(-1, 3)
+  grid = fine.transpose(2, 1, 0, 3).reshape(-1, 3)
   signed = signed.transpose(2, 1, 0).reshape(-1)
   if max_winding < MIN_SOLID_WINDING or not (signed < 0).any():
     return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
@@ -198,9 +199,9 @@ def cached_solidify(vertices: np.ndarray, faces: np.ndarray, *, cache_dir: str |
   return out
 
 
-def _signed_grid(vertices: np.ndarray, faces: np.ndarray, axes: list[np.ndarray],
+def _signed_grid(vertices: np.ndarray, faces: np.ndarray, fine: np.ndarray,
                  voxel: float) -> tuple[np.ndarray, float]:
-  """(nx, ny, nz) winding-number signed distance on the grid of ``axes`` (odd lengths), computed exactly only
+  """(nx, ny, nz) winding-number signed distance at the grid points ``fine`` (nx, ny, nz, 3), odd sizes, exact only
   near the surface, and the largest winding number on the grid half a voxel or more away from the soup.
 
   The winding number and the distance are evaluated on the coarse grid of every other point. A coarse cell
@@ -209,7 +210,6 @@ def _signed_grid(vertices: np.ndarray, faces: np.ndarray, axes: list[np.ndarray]
   winding numbers and, as distance, the smallest corner distance minus half the diagonal (a lower bound; only
   its sign matters to marching cubes away from the surface). All other fine points are evaluated exactly.
   """
-  fine = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1)
   coarse = fine[::2, ::2, ::2]
   shape_c = coarse.shape[:3]
   winding_c, distance_c = _winding_and_distance(vertices, faces, coarse.reshape(-1, 3))
