@@ -48,6 +48,14 @@ def grasp_crop(depth: jax.Array, center: jax.Array, angle: jax.Array, crop_size:
   raise ValueError(f"interpolation must be 'nearest' or 'bilinear', got {interpolation!r}")
 
 
+def model_crop(depth: jax.Array, center: jax.Array, angle: jax.Array, window: int, size: int) -> jax.Array:
+  """(size, size) GQ-CNN input crop of a ``window``-pixel grasp window of ``depth`` (H, W) metres, NaN read as 0:
+  nearest pixels when ``window == size`` (gqcnn's warp), bilinear resampling otherwise (e.g. Dex-Net 2.0's
+  96 -> 32). ``window`` and ``size`` are static. The one crop rule of training and of the policies."""
+  scale, interpolation = (1.0, 'nearest') if window == size else (size / window, 'bilinear')
+  return grasp_crop(jnp.nan_to_num(depth, nan=0.0), center, angle, window, scale, interpolation)
+
+
 def _read(image: jax.Array, col: jax.Array, row: jax.Array) -> jax.Array:
   """Pixels at integer (col, row) arrays, 0 outside the image."""
   h, w = image.shape

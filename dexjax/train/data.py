@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from dexjax.data.shards import GRIPPER_NAMES
-from dexjax.sampling.crops import grasp_crop
+from dexjax.sampling.crops import model_crop
 
 
 def _patch_size(window: int) -> int:
@@ -58,9 +58,7 @@ def grasp_patches(depth, centers: np.ndarray, window: int) -> tuple[np.ndarray, 
 def _crop_batch(patches: jax.Array, centers: jax.Array, angle: jax.Array, window: int, size: int) -> jax.Array:
   """(M, size, size) crops of the ``window``-pixel grasp windows in patches (M, P, P) (NaN depth read as 0):
   nearest pixels at equal sizes (gqcnn), bilinear resampling otherwise (e.g. 96 -> 32)."""
-  scale, interpolation = (1.0, 'nearest') if window == size else (size / window, 'bilinear')
-  crop = lambda d, c, a: grasp_crop(jnp.nan_to_num(d, nan=0.0), c, a, window, scale, interpolation)
-  return jax.vmap(crop)(patches, centers, angle)
+  return jax.vmap(model_crop, in_axes=(0, 0, 0, None, None))(patches, centers, angle, window, size)
 
 
 _crops = jax.jit(_crop_batch, static_argnums=(3, 4))
