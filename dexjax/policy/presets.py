@@ -1,0 +1,122 @@
+"""The named policies of `python -m dexjax.plan` and of the benchmark, built from trained GQ-CNNs.
+
+| name | what it does | models |
+|---|---|---|
+| ``ambidextrous`` | Dex-Net 4.0: CEM per gripper, then the grasp of highest predicted probability | both |
+| ``parallel_jaw`` / ``suction`` | CEM with that gripper's GQ-CNN only | that gripper's |
+| ``ranking`` | N candidates per gripper scored by the GQ-CNNs, the best overall (no refinement) | one or both |
+| ``random`` | a uniformly random gripper and candidate (its predicted probability reported if a model is given) | none |
+| ``suction_heuristic`` | suction planarity-centroid ranking (Dex-Net 3.0's baseline) | none |
+| ``composite_heuristic`` | the suction or the parallel-jaw force-closure heuristic, by a fixed rule | none |
+
+The samplers are the ones that drew the training candidates (`dexjax.generate` defaults: the Dex-Net 4.0 values),
+with their border widened, if needed, so a model's rotated crop window stays inside the image:
+ceil(sqrt(2) window / 2) pixels (gqcnn's rule; 68 for 96-pixel windows). The ranking policy scores
+``num_candidates`` grasps per gripper (default 400, the network evaluations of one seed-default CEM plan).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+from dexjax.models.saved import GraspQualityModel
+from dexjax.policy.cem import CEMParams, CEMPolicy
+from dexjax.policy.composite import GreedyComposite, HeuristicComposite, RandomComposite
+from dexjax.policy.heuristics import ParallelJawForceClosureCentroid, SuctionPlanarityCentroid
+from dexjax.policy.ranking import RandomPolicy, RankingPolicy
+from dexjax.policy.scorers import GRIPPERS, PARALLEL_JAW, SUCTION, GQCNNScorer
+from dexjax.sampling.image_samplers import AntipodalImageSampler, SuctionImageSampler
+
+POLICY_NAMES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 'suction_heuristic',
+                'composite_heuristic')
+CEM_PRESETS = ('seed', 'gqcnn')
+RANKING_CANDIDATES = 400
+
+
+def required_grippers(name: str) -> tuple[str, ...]:
+  """The grippers whose GQ-CNN policy ``name`` needs (``ranking`` and ``random`` use whichever are given)."""
+  _check_name(name)
+  return {'ambidextrous': GRIPPERS, 'parallel_jaw': (PARALLEL_JAW,), 'suction': (SUCTION,)}.get(name, ())
+
+
+def uses_models(name: str) -> bool:
+  """Whether policy ``name`` scores grasps with GQ-CNNs (``random`` only reports their probability)."""
+  _check_name(name)
+  return name in ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random')
+
+
+def _check_name(name: str) -> None:
+  if name not in POLICY_NAMES:
+    raise ValueError(f'policy: expected one of {", ".join(POLICY_NAMES)}, got {name!r}')
+
+
+def default_sampler(gripper: str, crop_window: int = 96, num_grasps: int = 100):
+  """The gripper's image sampler (generation defaults) for a model reading ``crop_window``-pixel windows."""
+  boundary = max(68.0, float(math.ceil(math.sqrt(2.0) * crop_window / 2)))
+  if gripper == PARALLEL_JAW:
+    return AntipodalImageSampler(boundary=boundary, num_grasps=num_grasps)
+  if gripper == SUCTION:
+    return SuctionImageSampler(boundary=boundary, num_grasps=num_grasps)
+  raise ValueError(f'gripper: expected one of {GRIPPERS}, got {gripper!r}')
+
+
+def cem_params(preset: str, gripper: str) -> CEMParams:
+  """``'seed'``: the seed's CEM (m 3, n 250, c 50, k 5, gamma 0.25); ``'gqcnn'``: gqcnn's Dex-Net 4.0 configs."""
+  if preset == 'seed':
+    return CEMParams()
+  if preset == 'gqcnn':
+    return CEMParams.gqcnn_dexnet4(gripper)
+  raise ValueError(f'cem: expected one of {CEM_PRESETS}, got {preset!r}')
+
+
+def _window(models: Mapping[str, GraspQualityModel], gripper: str) -> int:
+  return models[gripper].crop_window if gripper in models else 96
+
+
+def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None, *, cem: str = 'seed',
+                num_candidates: int = RANKING_CANDIDATES):
+  """The policy ``name`` (see the module table) as a pytree to pass to `dexjax.policy.plan_grasp`.
+
+  Args:
+    name: one of `POLICY_NAMES`.
+    models: GQ-CNNs by gripper (``'parallel_jaw'``, ``'suction'``).
+    cem: CEM preset, ``'seed'`` or ``'gqcnn'``.
+    num_candidates: candidates per gripper of the ranking, random and heuristic policies.
+
+  Raises:
+    ValueError: unknown name or preset; a model the policy needs is missing (the message names it); a model of
+      the wrong gripper.
+  """
+  _check_name(name)
+  models = dict(models or {})
+  for gripper, model in models.items():
+    if model.gripper != gripper:
+      raise ValueError(f"models[{gripper!r}]: expected a {gripper} GQ-CNN, got a {model.gripper} one")
+  missing = [g for g in required_grippers(name) if g not in models]
+  if missing:
+    raise ValueError(f"policy {name!r}: needs a GQ-CNN of {' and '.join(missing)} (--model: a training run with "
+                     f"'<gripper>/best', or that gripper's saved model); have {sorted(models) or 'none'}")
+  if num_candidates < 1:
+    raise ValueError(f'num_candidates: expected an integer >= 1, got {num_candidates}')
+  sampler = lambda g, n=num_candidates: default_sampler(g, _window(models, g), n)
+  if name in ('ambidextrous', 'parallel_jaw', 'suction'):
+    subs = tuple(CEMPolicy(GQCNNScorer(models[g]), sampler(g), cem_params(cem, g).validate())
+                 for g in required_grippers(name))
+    return GreedyComposite(subs)
+  if name == 'ranking':
+    if not models:
+      raise ValueError("policy 'ranking': needs at least one GQ-CNN (--model)")
+    return GreedyComposite(tuple(RankingPolicy(GQCNNScorer(models[g]), sampler(g)) for g in GRIPPERS if g in models))
+  if name == 'random':
+    return RandomComposite(tuple(RandomPolicy(sampler(g), GQCNNScorer(models[g]) if g in models else None)
+                                 for g in GRIPPERS))
+  suction = RankingPolicy(SuctionPlanarityCentroid(), sampler(SUCTION))
+  if name == 'suction_heuristic':
+    return GreedyComposite((suction,))
+  return HeuristicComposite(suction=suction,
+                            parallel_jaw=RankingPolicy(ParallelJawForceClosureCentroid(), sampler(PARALLEL_JAW)))
+
+
+__all__ = ['CEM_PRESETS', 'POLICY_NAMES', 'RANKING_CANDIDATES', 'cem_params', 'default_sampler', 'make_policy',
+           'required_grippers', 'uses_models']

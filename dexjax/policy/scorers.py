@@ -1,0 +1,70 @@
+"""Grasp scorers: the quality function Q(y, u) a policy maximises, for a batch of image grasps of one gripper.
+
+A scorer is a pytree (a frozen `flax.struct` dataclass) with a static ``gripper`` (``'parallel_jaw'`` or
+``'suction'``) that is called as ``scorer(observation, grasps) -> (N,) float32`` on one `Observation` and N image
+grasps (`dexjax.sampling.ImageParallelJawGrasp` / `ImageSuctionGrasp` with a leading axis N). Higher is better;
+the learned scorers return p(success) in [0, 1], so the scores of two grippers' learned scorers are comparable
+(both networks are trained on the same reward, the key idea of the ambidextrous policy). Being pytrees, scorers
+pass through `jax.jit` as arguments: one compilation serves every set of weights of one architecture.
+
+* `GQCNNScorer`: a trained GQ-CNN (`dexjax.models.GraspQualityModel`): each grasp's crop (`model_crop`, the crop
+  rule of training) and pose vector ([depth] for the parallel jaw, [depth, approach angle] for suction).
+* The heuristic scorers of the baselines live in `dexjax.policy.heuristics`.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from dexjax.models.saved import GraspQualityModel
+from dexjax.policy.observation import Observation
+from dexjax.sampling.crops import model_crop
+from dexjax.sampling.image_grasps import ImageParallelJawGrasp, ImageSuctionGrasp
+
+PARALLEL_JAW, SUCTION = 'parallel_jaw', 'suction'
+GRIPPERS = (PARALLEL_JAW, SUCTION)
+
+
+def pose_inputs(grasps: ImageParallelJawGrasp | ImageSuctionGrasp) -> jax.Array:
+  """(N, pose_dim) network pose inputs of N image grasps: [depth] (parallel jaw) or [depth, approach angle]
+  (suction), metres and radians (as `dexjax.train.pose_vectors` of dataset rows)."""
+  if isinstance(grasps, ImageSuctionGrasp):
+    return jnp.stack([grasps.depth, grasps.approach_angle], axis=-1)
+  return grasps.depth[:, None]
+
+
+@struct.dataclass
+class GQCNNScorer:
+  """p(success) of image grasps from a trained GQ-CNN.
+
+  Attributes:
+    model: the `GraspQualityModel` (weights, normalisation, architecture, crop window, gripper).
+  """
+
+  model: GraspQualityModel
+
+  @property
+  def gripper(self) -> str:
+    return self.model.gripper
+
+  def crops(self, observation: Observation, grasps: ImageParallelJawGrasp | ImageSuctionGrasp) -> jax.Array:
+    """(N, S, S, 1) raw crops (metres) of N grasps, S = the network's crop size."""
+    window, size = self.model.crop_window, self.model.config.crop_size
+    crop = jax.vmap(model_crop, in_axes=(None, 0, 0, None, None))
+    return crop(observation.depth, grasps.center, grasps.angle, window, size)[..., None]
+
+  def __call__(self, observation: Observation, grasps: ImageParallelJawGrasp | ImageSuctionGrasp) -> jax.Array:
+    """(N,) p(success) of N grasps; NaN-free (invalid grasps are the caller's to mask)."""
+    return self.model(self.crops(observation, grasps), pose_inputs(grasps))
+
+
+def check_scorer(scorer, gripper: str) -> None:
+  """Raises ValueError unless ``scorer`` scores ``gripper``'s grasps (names both)."""
+  if getattr(scorer, 'gripper', None) != gripper:
+    raise ValueError(f"scorer: expected a scorer of gripper {gripper!r}, got {type(scorer).__name__} of gripper "
+                     f"{getattr(scorer, 'gripper', None)!r}")
+
+
+__all__ = ['GRIPPERS', 'PARALLEL_JAW', 'SUCTION', 'GQCNNScorer', 'check_scorer', 'pose_inputs']
