@@ -68,6 +68,23 @@ def _rounds(samples: dict[str, np.ndarray]) -> list[dict[str, dict[str, np.ndarr
   return out
 
 
+def _view(mask: np.ndarray | None, plan: dict, shape: tuple[int, int], margin: int = 40):
+  """((u0, u1), (v0, v1)) pixel window to show: the mask's (and the grasp's) bounding box with a margin, made
+  square, or the whole image."""
+  h, w = shape
+  if mask is None or not mask.any():
+    return (0, w), (0, h)
+  rows, cols = np.nonzero(mask)
+  us, vs = [cols.min(), cols.max()], [rows.min(), rows.max()]
+  if plan.get('gripper') is not None:
+    us.append(plan['pixel'][0])
+    vs.append(plan['pixel'][1])
+  half = max(max(us) - min(us), max(vs) - min(vs)) / 2 + margin
+  cu, cv = (max(us) + min(us)) / 2, (max(vs) + min(vs)) / 2
+  u0, v0 = int(max(0, cu - half)), int(max(0, cv - half))
+  return (u0, int(min(w, cu + half))), (v0, int(min(h, cv + half)))
+
+
 def save_plan_png(path: str | os.PathLike[str], depth: np.ndarray, plan: dict, fx: float,
                   samples: dict[str, np.ndarray] | None = None, mask: np.ndarray | None = None,
                   jaw_width: float = 0.05) -> None:
@@ -81,23 +98,24 @@ def save_plan_png(path: str | os.PathLike[str], depth: np.ndarray, plan: dict, f
     fx: focal length, pixels (jaw opening in pixels).
     samples: optional samples as NumPy arrays: ``center`` (.., R, N, 2), ``angle``, ``depth``, ``quality``,
       ``valid`` (.., R, N), with ``grippers`` naming the leading axis when stacked per gripper (else one name).
-    mask: optional (H, W) bool mask drawn as a faint outline region.
+    mask: optional (H, W) bool mask of where grasps may lie: outlined, and the view zooms to it.
     jaw_width: jaw opening of the sampled parallel-jaw grasps, metres.
   """
   rounds = _rounds(samples) if samples is not None else []
   panels = len(rounds) + 1
   h, w = depth.shape
-  figure = Figure(figsize=(_PANEL * panels, _PANEL * h / w + 0.5), dpi=100)
+  figure = Figure(figsize=(_PANEL * panels, _PANEL + 0.5), dpi=100)
   FigureCanvasAgg(figure)
   axes = np.atleast_1d(figure.subplots(1, panels))
   finite = depth[np.isfinite(depth)]
   low, high = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
+  (u0, u1), (v0, v1) = _view(mask, plan, (h, w))
   for a in axes:
     a.imshow(depth, cmap='gray_r', vmin=low, vmax=high, interpolation='nearest')
     if mask is not None and mask.any():
       a.contour(mask.astype(float), levels=[0.5], colors='yellow', linewidths=0.5)
-    a.set_xlim(-0.5, w - 0.5)
-    a.set_ylim(h - 0.5, -0.5)
+    a.set_xlim(u0 - 0.5, u1 - 0.5)
+    a.set_ylim(v1 - 0.5, v0 - 0.5)
     a.set_axis_off()
   for r, (a, by_gripper) in enumerate(zip(axes, rounds)):
     counts = []
