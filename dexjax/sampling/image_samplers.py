@@ -13,7 +13,9 @@ Depth images are (H, W) float32 metres, NaN (or <= 0) for invalid pixels; an opt
   Invalid depths are handled by NaN-aware smoothing (`masked_blur`) instead of gqcnn's prerequisite
   inpainting: they are never contacts, and a centre window touching one is rejected.
   Shapes are static: ``num_edges`` edge pixels are drawn by Gumbel top-k over the edge mask, all their pairs
-  are tested, and ``ceil(num_grasps / depth_samples)`` valid pairs are drawn by Gumbel top-k over the pair mask.
+  are tested, and ``ceil(num_grasps / depth_samples)`` valid pairs are drawn by Gumbel top-k over the pair mask;
+  the pair mask already holds the contact-distance and border tests, so the drawn pairs pass them (gqcnn keeps
+  drawing until enough pairs pass).
 * `sample_suction_image_grasps` (gqcnn's `DepthImageSuctionPointSampler`): camera-frame point cloud, normals
   = cross(d/drow, d/dcol) (towards the camera), approach = -normal, admissible pixels = valid depth and
   normal, inside the mask and away from the border, approach within ``max_approach_angle`` of the optical
@@ -175,6 +177,21 @@ def _pair_mask(pos: jax.Array, normals: jax.Array, ok: jax.Array, span_px: jax.A
           & (ip2 > cos_cone))
 
 
+def _pair_feasible(pos: jax.Array, smoothed: jax.Array, camera: Camera, params: AntipodalImageSampler) -> jax.Array:
+  """(K, K) bool: the per-pair tests of `_pair_grasp` that need no random draw, applied before pairs are drawn
+  (gqcnn keeps drawing pairs until it has enough that pass): deprojected contacts at most the jaw width apart,
+  the centre away from the border."""
+  h, w = smoothed.shape
+  points = jax.vmap(camera_point, in_axes=(None, 0, 0))(camera, pos[:, ::-1].astype(jnp.float32),
+                                                       smoothed[pos[:, 0], pos[:, 1]])
+  close = jnp.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1) <= params.gripper_width
+  center = (pos[:, None, :] + pos[None, :, :]) // 2  # (row, col), as `_pair_grasp`
+  b = params.boundary
+  inside = ((center[..., 0] >= b) & (center[..., 1] >= b) & (center[..., 0] <= h - b)
+            & (center[..., 1] <= w - b))
+  return close & inside
+
+
 def _pair_grasp(key: jax.Array, p1: jax.Array, p2: jax.Array, smoothed: jax.Array, valid_px: jax.Array,
                 camera: Camera, params: AntipodalImageSampler) -> tuple[ImageParallelJawGrasp, jax.Array]:
   """Grasp of one contact pair (row, col) ints and its validity: contacts within the jaw width in 3-D,
@@ -222,7 +239,7 @@ def sample_antipodal_image_grasps(key: jax.Array, depth: jax.Array, camera: Came
   pos, normals, ok = _edge_pool(k_edge, smoothed, mask, params)
   min_depth = jnp.min(jnp.where(mask, depth, jnp.inf)) + params.min_depth_offset
   span_px = camera.intrinsics.fx * params.gripper_width / min_depth
-  pairs = _pair_mask(pos, normals, ok, span_px, params.friction)
+  pairs = _pair_mask(pos, normals, ok, span_px, params.friction) & _pair_feasible(pos, smoothed, camera, params)
   num_pairs = -(-params.num_grasps // params.depth_samples)
   idx, pair_ok = _gumbel_top_k(k_pair, pairs.reshape(-1), min(num_pairs, pairs.size))
   rep = jnp.repeat(jnp.arange(idx.shape[0]), params.depth_samples)[:params.num_grasps]
