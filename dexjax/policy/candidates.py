@@ -42,7 +42,10 @@ def sampler_gripper(sampler: Sampler) -> str:
 def sample_candidates(key: jax.Array, observation: Observation, sampler: Sampler) -> tuple[ImageGrasp, jax.Array]:
   """``sampler.num_grasps`` candidates centred on the observation's mask: (grasps with leading axis N, valid (N,))."""
   if sampler_gripper(sampler) == PARALLEL_JAW:
-    return sample_antipodal_image_grasps(key, observation.depth, observation.camera, sampler, observation.mask)
+    grasps, valid = sample_antipodal_image_grasps(key, observation.depth, observation.camera, sampler,
+                                                  observation.mask)
+    # The sampler keeps contacts on the mask; the midpoint of two contacts on two objects may lie between them.
+    return grasps, valid & _inside(observation, jnp.floor(grasps.center + 0.5).astype(jnp.int32), 0)
   return sample_suction_image_grasps(key, observation.depth, observation.camera, sampler, observation.mask)
 
 

@@ -205,10 +205,19 @@ def _plane_mask(depth: np.ndarray, intrinsics: Intrinsics, threshold: float,
   return above, plane
 
 
+def _surrounded(component: np.ndarray) -> np.ndarray:
+  """(H, W) bool: pixels with a pixel of ``component`` to their left, right, top or bottom in >= 3 of the 4."""
+  hits = [np.maximum.accumulate(component, axis=axis) for axis in (0, 1)]
+  hits += [np.flip(np.maximum.accumulate(np.flip(component, axis), axis=axis), axis) for axis in (0, 1)]
+  return np.sum(hits, axis=0) >= 3
+
+
 def _drop_containers(above: np.ndarray, floor: np.ndarray, min_size: float = 0.01) -> tuple[np.ndarray, int]:
   """``above`` without its "containers" (bin walls): connected components (of at least ``min_size`` of the
   image) whose outline, holes filled, encloses more ``floor`` pixels than their own size (a rim around a
-  floor; an object shows no floor inside, a tape roll less than its own area). Returns (mask, count)."""
+  floor; an object shows no floor inside, a tape roll less than its own area). A pixel is enclosed when the
+  component lies in at least three of the four image directions from it (`_surrounded`), so a rim that the image
+  border cuts on one side still encloses its floor. Returns (mask, count)."""
   labels, count = ndimage.label(above)
   if count == 0 or not floor.any():
     return above, 0
@@ -218,7 +227,7 @@ def _drop_containers(above: np.ndarray, floor: np.ndarray, min_size: float = 0.0
     if label == 0:
       continue
     component = labels == label
-    if np.count_nonzero(ndimage.binary_fill_holes(component) & floor) > sizes[label]:
+    if np.count_nonzero(_surrounded(component) & floor) > sizes[label]:
       above = above & ~component
       removed += 1
   return above, removed
