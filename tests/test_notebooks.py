@@ -32,3 +32,61 @@ def test_grasp_quality_notebook_runs(cache_dir, monkeypatch):
   assert p.shape == (64,) and finite.size > 32 and np.all((finite >= 0) & (finite <= 1))
   probs = scope["probs"]
   assert float(probs[0]) >= 0.5 and float(probs[-1]) <= 0.2  # light objects hold, past the payload they drop
+
+
+def test_policy_notebook_runs(cache_dir, monkeypatch):
+  """Every policy plans a grasp on an object of the rendered heap; the CEM keeps m + 1 rounds of samples; a noisy
+  image with holes is prepared (inpainted, background-segmented) and planned on. Small CEM and candidate counts."""
+  import jax
+  from scipy import ndimage
+
+  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
+  monkeypatch.delenv("DEXJAX_MODEL", raising=False)  # the untrained networks
+  matplotlib.use("Agg")
+  src = _code(NOTEBOOKS / "policy.ipynb")
+  small = {"NUM_SEED = 250": "NUM_SEED = 40", "NUM_RESAMPLE = 50": "NUM_RESAMPLE = 16",
+           "NUM_ITERATIONS = 3": "NUM_ITERATIONS = 1", "NUM_CANDIDATES = 400": "NUM_CANDIDATES = 48"}
+  for full, reduced in small.items():
+    assert full in src
+    src = src.replace(full, reduced)
+  scope: dict = {}
+  exec(compile(src, "policy.ipynb", "exec"), scope)
+
+  objects = scope["objects"]
+  assert objects.shape == (500, 500) and 0.01 < objects.mean() < 0.5
+
+  def pixel(action):
+    u, v = np.floor(np.asarray(action.center) + 0.5).astype(int)
+    return v, u
+
+  actions = scope["actions"]
+  assert set(actions) == set(scope["POLICY_NAMES"])
+  for name, action in actions.items():
+    assert bool(action.valid), name
+    # Grasps are centred on the mask (here the rendered objects); see the notebook's note on parallel-jaw centres.
+    assert objects[pixel(action)], f"{name}: grasp centre {np.asarray(action.center)} is not on an object"
+    assert np.isfinite(float(action.probability)) and 0.0 <= float(action.probability) <= 1.0, name
+    assert np.all(np.isfinite(np.asarray(action.pose))), name
+  ambidextrous = actions["ambidextrous"]
+  per_gripper = ambidextrous.per_gripper
+  assert np.all(np.asarray(per_gripper.valid))  # one CEM plan per gripper
+  assert float(ambidextrous.probability) == float(np.max(per_gripper.probability))  # the argmax over grippers
+  assert actions["parallel_jaw"].gripper_name == "parallel_jaw" and actions["suction"].gripper_name == "suction"
+
+  m = scope["CEM"].num_iterations
+  samples = scope["samples"]
+  assert m == 1 and samples["valid"].shape == (2, m + 1, 40)  # (grippers, rounds, max(n, c))
+  counts = samples["valid"].sum(axis=-1)
+  assert np.all(counts[:, 0] > 0) and np.all((counts[:, 1:] > 0) & (counts[:, 1:] <= 16)), counts
+  picture = scope["picture"]  # save_plan_png: one panel per round (m + 1) and the plan
+  assert picture.ndim == 3 and picture.shape[1] > 2 * picture.shape[0]
+
+  info, real_obs, real_action = scope["info"], scope["real_obs"], scope["real_action"]
+  assert info["segmentation"] == "background" and info["invalid_fraction"] > 0.04
+  depth, mask = np.asarray(real_obs.depth), np.asarray(real_obs.mask)
+  assert np.all(np.isfinite(depth) & (depth > 0))  # holes inpainted
+  assert not np.any(mask & (scope["noisy"] <= 0))  # no grasp centred on a hole
+  assert (mask & objects).sum() > 0.9 * mask.sum() and (mask & objects).sum() > 0.5 * objects.sum()
+  assert bool(real_action.valid) and mask[pixel(real_action)]
+  assert ndimage.binary_dilation(objects, iterations=2)[pixel(real_action)]
+  assert jax.tree.structure(real_obs) == jax.tree.structure(scope["obs"])
