@@ -14,7 +14,8 @@ pixels: ``--segmask`` (a PNG or ``.npy``, non-zero = objects), else pixels close
 ``auto``); ``--segment none`` allows every pixel. ``--model`` is a training run (``python -m dexjax.train``; its
 ``<gripper>/best`` models) or one gripper's saved model; the heuristic policies need none. ``--camera-pose`` (a
 dexjax camera JSON with ``rotation`` and ``position``, or a 4 x 4 world-from-camera matrix as JSON or ``.npy``)
-adds the grasp's world pose.
+adds the grasp's world pose. Compiled plans are kept in ``$DEXJAX_CACHE/jax`` (JAX's persistent compilation
+cache): the first plan for an image size and network architecture compiles (tens of seconds), later runs much less.
 
 Writes plan.json: ``{"gripper", "pixel": [column, row], "angle", "depth", "approach_angle", "width", "pose" (4 x
 4, camera frame, metres), "probability", "policy", "plan_s", "compile_s", "grippers": {gripper: best candidate},
@@ -173,6 +174,21 @@ def _samples_numpy(action, names: list[str]) -> dict | None:
   return out
 
 
+def _persistent_compilation_cache() -> None:
+  """Keeps compiled plans in ``$DEXJAX_CACHE/jax`` (JAX's persistent cache), so a rerun on an image of the same
+  size with a model of the same architecture skips most of the compilation. Best effort: an unwritable cache
+  only costs the time."""
+  import jax  # pylint: disable=g-import-not-at-top
+  from dexjax.geometry.cache import default_cache_dir  # pylint: disable=g-import-not-at-top
+  try:
+    directory = Path(default_cache_dir()) / 'jax'
+    directory.mkdir(parents=True, exist_ok=True)
+    jax.config.update('jax_compilation_cache_dir', os.fspath(directory))
+    jax.config.update('jax_persistent_cache_min_compile_time_secs', 1.0)
+  except OSError:
+    pass
+
+
 @command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
@@ -196,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
                                           segment='background' if args.segment == 'auto' and background is not None
                                           else args.segment, threshold=args.threshold)
   models = _load_models(args.model, args.policy)
+  _persistent_compilation_cache()
   policy = make_policy(args.policy, models, cem=args.cem, num_candidates=args.num_candidates)
   names = [p.gripper for p in policy.policies] if hasattr(policy, 'policies') else ['parallel_jaw', 'suction']
   key = jax.random.key(args.seed)
