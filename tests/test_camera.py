@@ -213,13 +213,19 @@ def _assert_invalid_kept(noisy, depth):
   assert np.isnan(noisy[0, 0]) and noisy[1, 1] == 0.0 and np.isposinf(noisy[2, 2])
 
 
-def test_gamma_noise_matches_the_gamma_distribution():
+def test_gamma_noise_is_one_gamma_multiplier_per_image():
+  """gqcnn's multiplicative noise (spec 3.4): one Gamma(k, 1/k) factor per image, the same for every pixel."""
   depth = _depth_with_invalid()
   noisy = np.asarray(gamma_depth_noise(jax.random.key(4), depth, 1000.0))  # eager: jax compiles it once
   _assert_invalid_kept(noisy, depth)
-  factor = _valid_pixels(noisy) / 0.8
-  assert factor.mean() == pytest.approx(1.0, abs=1e-3)
-  assert factor.var() == pytest.approx(1e-3, rel=0.05)
+  ratio = _valid_pixels(noisy) / 0.8
+  np.testing.assert_allclose(ratio, ratio[0], rtol=1e-6)  # one factor for the whole image
+  assert ratio[0] != pytest.approx(1.0, abs=1e-6)
+  small = jnp.full((2, 2), 0.8, jnp.float32)
+  keys = jax.random.split(jax.random.key(7), 4000)
+  factor = np.asarray(jax.vmap(lambda k: gamma_depth_noise(k, small, 1000.0)[0, 0])(keys)) / 0.8
+  assert factor.mean() == pytest.approx(1.0, abs=2e-3)
+  assert factor.var() == pytest.approx(1e-3, rel=0.08)
   assert stats.kstest(factor, stats.gamma(a=1000.0, scale=1e-3).cdf).pvalue > 1e-3
   np.testing.assert_array_equal(noisy, gamma_depth_noise(jax.random.key(4), depth, 1000.0))
   assert not np.array_equal(noisy, gamma_depth_noise(jax.random.key(5), depth, 1000.0))

@@ -88,7 +88,8 @@ def _valid(depth: jax.Array) -> jax.Array:
 
 
 def gamma_depth_noise(key: jax.Array, depth: jax.Array, shape: jax.Array | float = 1000.0) -> jax.Array:
-  """Multiplies every valid pixel by its own Gamma(shape, 1 / shape) draw (mean 1, variance 1 / shape).
+  """Multiplies every valid pixel of the image by one Gamma(shape, 1 / shape) draw (mean 1, variance 1 / shape),
+  as gqcnn's multiplicative denoising (spec section 3.4: one multiplier per image, a global scale error).
 
   Args:
     key: a PRNG key.
@@ -100,7 +101,7 @@ def gamma_depth_noise(key: jax.Array, depth: jax.Array, shape: jax.Array | float
   """
   _check_image('gamma_depth_noise', depth)
   k = jnp.asarray(shape, jnp.float32)
-  factor = jax.random.gamma(key, k, depth.shape, jnp.float32) / k
+  factor = jax.random.gamma(key, k, (), jnp.float32) / k
   return jnp.where(_valid(depth), depth * factor.astype(depth.dtype), depth)
 
 
