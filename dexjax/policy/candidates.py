@@ -23,8 +23,9 @@ import jax.numpy as jnp
 from dexjax.policy.observation import Observation
 from dexjax.policy.scorers import PARALLEL_JAW, SUCTION
 from dexjax.sampling.image_grasps import ImageParallelJawGrasp, ImageSuctionGrasp, angles_from_approach
-from dexjax.sampling.image_samplers import (AntipodalImageSampler, SuctionImageSampler, sample_antipodal_image_grasps,
-                                            sample_suction_image_grasps, surface_normals)
+from dexjax.sampling.image_samplers import (AntipodalImageSampler, SuctionImageSampler, centre_window,
+                                            sample_antipodal_image_grasps, sample_suction_image_grasps,
+                                            surface_normals)
 
 Sampler = AntipodalImageSampler | SuctionImageSampler
 ImageGrasp = ImageParallelJawGrasp | ImageSuctionGrasp
@@ -72,17 +73,6 @@ def _inside(observation: Observation, pixel: jax.Array, boundary) -> jax.Array:
   return inside & on_mask
 
 
-def _surface_depth(depth: jax.Array, pixel: jax.Array, radius: int) -> jax.Array:
-  """(N,) smallest depth in the 2r x 2r window at integer pixels (N, 2) (u, v), as the antipodal sampler's z_c."""
-  h, w = depth.shape
-
-  def one(p):
-    start = jnp.clip(p[::-1] - radius, 0, jnp.array([h - 2 * radius, w - 2 * radius]))
-    return jnp.min(jax.lax.dynamic_slice(depth, (start[0], start[1]), (2 * radius, 2 * radius)))
-
-  return jax.vmap(one)(pixel)
-
-
 def grasps_from_features(observation: Observation, features: jax.Array, sampler: Sampler,
                          normals: jax.Array | None = None) -> tuple[ImageGrasp, jax.Array]:
   """Decodes feature vectors (N, D) into N grasps and their validity (N,) bool (see the module doc).
@@ -96,7 +86,7 @@ def grasps_from_features(observation: Observation, features: jax.Array, sampler:
     axis = p2 - p1
     pixel = jnp.floor(center + 0.5).astype(jnp.int32)
     ok = _inside(observation, pixel, sampler.boundary)
-    z_c = _surface_depth(observation.depth, pixel, sampler.depth_window)
+    z_c = jax.vmap(lambda p: jnp.min(centre_window(observation.depth, p[::-1], sampler.depth_window)))(pixel)
     depth = jnp.clip(d, z_c + sampler.min_depth_offset, z_c + sampler.max_depth_offset)
     grasps = ImageParallelJawGrasp(center=center, angle=jnp.arctan2(axis[:, 1], axis[:, 0]), depth=depth,
                                    width=jnp.full(d.shape, sampler.gripper_width, jnp.float32))

@@ -178,9 +178,9 @@ def _pair_mask(pos: jax.Array, normals: jax.Array, ok: jax.Array, span_px: jax.A
 
 
 def _pair_feasible(pos: jax.Array, smoothed: jax.Array, camera: Camera, params: AntipodalImageSampler) -> jax.Array:
-  """(K, K) bool: the per-pair tests of `_pair_grasp` that need no random draw, applied before pairs are drawn
-  (gqcnn keeps drawing pairs until it has enough that pass): deprojected contacts at most the jaw width apart,
-  the centre away from the border."""
+  """(K, K) bool: the per-pair tests that need no random draw, applied before pairs are drawn (gqcnn keeps
+  drawing pairs until it has enough that pass): deprojected contacts at most the jaw width apart, the centre
+  away from the border."""
   h, w = smoothed.shape
   points = jax.vmap(camera_point, in_axes=(None, 0, 0))(camera, pos[:, ::-1].astype(jnp.float32),
                                                        smoothed[pos[:, 0], pos[:, 1]])
@@ -192,28 +192,28 @@ def _pair_feasible(pos: jax.Array, smoothed: jax.Array, camera: Camera, params: 
   return close & inside
 
 
+def centre_window(image: jax.Array, center: jax.Array, radius: int) -> jax.Array:
+  """(2r, 2r) window of ``image`` (H, W) at the integer pixel ``center`` (row, col), shifted to lie inside the
+  image: the window whose smallest depth is a grasp's surface depth z_c (``radius`` static)."""
+  h, w = image.shape
+  start = jnp.clip(center - radius, 0, jnp.array([h - 2 * radius, w - 2 * radius]))
+  return jax.lax.dynamic_slice(image, (start[0], start[1]), (2 * radius, 2 * radius))
+
+
 def _pair_grasp(key: jax.Array, p1: jax.Array, p2: jax.Array, smoothed: jax.Array, valid_px: jax.Array,
-                camera: Camera, params: AntipodalImageSampler) -> tuple[ImageParallelJawGrasp, jax.Array]:
-  """Grasp of one contact pair (row, col) ints and its validity: contacts within the jaw width in 3-D,
-  centre away from the border, every raw depth of the centre window valid (z_c = their smoothed minimum)."""
-  h, w = smoothed.shape
+                params: AntipodalImageSampler) -> tuple[ImageParallelJawGrasp, jax.Array]:
+  """Grasp of one contact pair (row, col) ints and its validity: every raw depth of the centre window valid
+  (z_c = their smoothed minimum). The contact-distance and border tests are the pair mask's (`_pair_feasible`)."""
   center = (p1 + p2) // 2  # (row, col)
   axis = (p2 - p1).astype(jnp.float32)
   angle = jnp.arctan2(axis[0], axis[1])
-  d1, d2 = smoothed[p1[0], p1[1]], smoothed[p2[0], p2[1]]
-  x1 = camera_point(camera, p1[::-1].astype(jnp.float32), d1)
-  x2 = camera_point(camera, p2[::-1].astype(jnp.float32), d2)
-  close = jnp.linalg.norm(x2 - x1) <= params.gripper_width
-  b = params.boundary
-  inside = (center[0] >= b) & (center[1] >= b) & (center[0] <= h - b) & (center[1] <= w - b)
   r = params.depth_window
-  start = jnp.clip(center - r, 0, jnp.array([h - 2 * r, w - 2 * r]))
-  z_c = jnp.min(jax.lax.dynamic_slice(smoothed, (start[0], start[1]), (2 * r, 2 * r)))
-  depth_ok = jnp.all(jax.lax.dynamic_slice(valid_px, (start[0], start[1]), (2 * r, 2 * r))) & (z_c > 0)
+  z_c = jnp.min(centre_window(smoothed, center, r))
+  depth_ok = jnp.all(centre_window(valid_px, center, r)) & (z_c > 0)
   depth = z_c + jax.random.uniform(key, (), minval=params.min_depth_offset, maxval=params.max_depth_offset)
   grasp = ImageParallelJawGrasp(center=center[::-1].astype(jnp.float32), angle=angle, depth=depth,
                                 width=jnp.asarray(params.gripper_width, jnp.float32))
-  return grasp, close & inside & depth_ok & valid_px[p1[0], p1[1]] & valid_px[p2[0], p2[1]]
+  return grasp, depth_ok & valid_px[p1[0], p1[1]] & valid_px[p2[0], p2[1]]
 
 
 def sample_antipodal_image_grasps(key: jax.Array, depth: jax.Array, camera: Camera,
@@ -247,8 +247,8 @@ def sample_antipodal_image_grasps(key: jax.Array, depth: jax.Array, camera: Came
   rep = jnp.pad(rep, (0, params.num_grasps - rep.shape[0]))
   i, j = idx[rep] // pos.shape[0], idx[rep] % pos.shape[0]
   keys = jax.random.split(k_depth, params.num_grasps)
-  grasps, ok_grasp = jax.vmap(_pair_grasp, in_axes=(0, 0, 0, None, None, None, None))(
-      keys, pos[i], pos[j], smoothed, valid_px, camera, params)
+  grasps, ok_grasp = jax.vmap(_pair_grasp, in_axes=(0, 0, 0, None, None, None))(
+      keys, pos[i], pos[j], smoothed, valid_px, params)
   return grasps, ok_grasp & pair_ok[rep] & filled
 
 
