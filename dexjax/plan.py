@@ -95,10 +95,7 @@ def _load_models(path: str | None, policy: str) -> dict:
   from dexjax.models.saved import BEST_DIR, load  # pylint: disable=g-import-not-at-top
   from dexjax.policy.presets import uses_models  # pylint: disable=g-import-not-at-top
   if path is None or not uses_models(policy):
-    if path is None and policy not in ('random', 'suction_heuristic', 'composite_heuristic'):
-      raise ValueError(f"--model: policy {policy!r} needs trained GQ-CNNs: pass a training run "
-                       f"(python -m dexjax.train --out RUN) or a saved model directory")
-    return {}
+    return {}  # `make_policy` names the models a learned policy misses
   root = Path(path)
   grippers = [g for g in ('parallel_jaw', 'suction') if (root / g / BEST_DIR).is_dir()]
   if grippers:
@@ -148,6 +145,7 @@ def _record(action, policy: str) -> dict:
 def _plan_json(action, policy: str, names: list[str]) -> dict:
   """plan.json's grasp fields: the chosen action, or ``gripper`` None with a reason; each gripper's candidate."""
   import jax  # pylint: disable=g-import-not-at-top
+  from dexjax.policy.scorers import GRIPPERS  # pylint: disable=g-import-not-at-top
   if bool(action.valid):
     plan = _record(action, policy)
   else:
@@ -157,7 +155,7 @@ def _plan_json(action, policy: str, names: list[str]) -> dict:
                       'surfaces within the approach cone)'}
   grippers = {}
   if action.per_gripper is not None:
-    for i, name in enumerate(('parallel_jaw', 'suction')):
+    for i, name in enumerate(GRIPPERS):
       one = jax.tree.map(lambda x, i=i: x[i], action.per_gripper)
       if name in names:
         grippers[name] = _record(one, policy) if bool(one.valid) else None
@@ -199,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
   from dexjax.policy.depth_io import load_depth, load_segmask  # pylint: disable=g-import-not-at-top
   from dexjax.policy.preprocess import prepare_observation  # pylint: disable=g-import-not-at-top
   from dexjax.policy.presets import make_policy  # pylint: disable=g-import-not-at-top
+  from dexjax.policy.scorers import GRIPPERS  # pylint: disable=g-import-not-at-top
   from dexjax.render.camera import Camera  # pylint: disable=g-import-not-at-top
   from dexjax.render.intrinsics_io import load_camera_or_intrinsics  # pylint: disable=g-import-not-at-top
 
@@ -208,13 +207,12 @@ def main(argv: list[str] | None = None) -> int:
   mask = load_segmask(args.segmask, depth.shape[:2]) if args.segmask else None
   background = load_depth(args.background, args.depth_scale) if args.background else None
   world = _camera_pose(args.camera_pose) if args.camera_pose else None
-  observation, info = prepare_observation(depth, camera, mask, background=background,
-                                          segment='background' if args.segment == 'auto' and background is not None
-                                          else args.segment, threshold=args.threshold)
+  observation, info = prepare_observation(depth, camera, mask, background=background, segment=args.segment,
+                                          threshold=args.threshold)
   models = _load_models(args.model, args.policy)
   _persistent_compilation_cache()
   policy = make_policy(args.policy, models, cem=args.cem, num_candidates=args.num_candidates)
-  names = [p.gripper for p in policy.policies] if hasattr(policy, 'policies') else ['parallel_jaw', 'suction']
+  names = [g for g in GRIPPERS if g in {p.gripper for p in policy.policies}]  # the order of the samples
   key = jax.random.key(args.seed)
   start = time.perf_counter()
   compiled = jax.jit(plan_grasp, static_argnames='samples').lower(key, observation, policy,

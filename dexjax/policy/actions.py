@@ -116,6 +116,12 @@ def best_action(actions: list[GraspAction]) -> tuple[GraspAction, jax.Array]:
   return jax.tree.map(lambda x: x[index], stacked), index
 
 
+def samples_of(grasps, quality: jax.Array, valid: jax.Array) -> PolicySamples:
+  """One round (R = 1) of N scored image grasps (leading axis N) as `PolicySamples`."""
+  return PolicySamples(center=grasps.center[None], angle=grasps.angle[None], depth=grasps.depth[None],
+                       quality=quality[None], valid=valid[None])
+
+
 def pad_samples(samples: PolicySamples, rounds: int, size: int) -> PolicySamples:
   """``samples`` padded with invalid entries to R = ``rounds`` rounds of N = ``size`` grasps."""
   r, n = samples.valid.shape
@@ -124,5 +130,5 @@ def pad_samples(samples: PolicySamples, rounds: int, size: int) -> PolicySamples
                        quality=pad(samples.quality, -jnp.inf), valid=pad(samples.valid, False))
 
 
-__all__ = ['GraspAction', 'PolicySamples', 'action_from_grasp', 'best_action', 'pad_samples', 'select_action',
-           'stack_actions']
+__all__ = ['GraspAction', 'PolicySamples', 'action_from_grasp', 'best_action', 'pad_samples', 'samples_of',
+           'select_action', 'stack_actions']

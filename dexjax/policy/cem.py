@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from dexjax.policy.actions import GraspAction, PolicySamples, action_from_grasp
+from dexjax.policy.actions import GraspAction, action_from_grasp, pad_samples, samples_of
 from dexjax.policy.candidates import (Sampler, grasp_features, grasps_from_features, sample_candidates,
                                       sampler_gripper)
 from dexjax.policy.gmm import fit_gaussian_mixture, sample_gaussian_mixture
@@ -164,13 +164,6 @@ def _resample(key: jax.Array, observation: Observation, grasps, quality: jax.Arr
   return _take(new, index), kept
 
 
-def _round(grasps, quality: jax.Array, valid: jax.Array, size: int) -> PolicySamples:
-  pad = size - quality.shape[0]
-  fill = lambda x, value: jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1), constant_values=value)
-  return PolicySamples(center=fill(grasps.center, 0.0), angle=fill(grasps.angle, 0.0), depth=fill(grasps.depth, 0.0),
-                       quality=fill(quality, -jnp.inf), valid=fill(valid, False))
-
-
 def cem_policy(key: jax.Array, observation: Observation, policy: CEMPolicy, samples: bool = False) -> GraspAction:
   """Plans one gripper's grasp on one observation by the Cross-Entropy Method (see the module doc).
 
@@ -192,13 +185,13 @@ def cem_policy(key: jax.Array, observation: Observation, policy: CEMPolicy, samp
   quality = _scores(policy.scorer, observation, grasps, valid)
   normals = None if policy.gripper == PARALLEL_JAW else surface_normals(observation.camera, observation.depth)
   size = max(cem.num_seed, cem.num_resample)
-  rounds = [_round(grasps, quality, valid, size)]
+  rounds = [pad_samples(samples_of(grasps, quality, valid), 1, size)]
   best_before = jnp.argmax(quality)
   earlier = (_take(grasps, best_before), quality[best_before])
   for key_i in jax.random.split(k_iter, cem.num_iterations):
     grasps, valid = _resample(key_i, observation, grasps, quality, policy, normals)
     quality = _scores(policy.scorer, observation, grasps, valid)
-    rounds.append(_round(grasps, quality, valid, size))
+    rounds.append(pad_samples(samples_of(grasps, quality, valid), 1, size))
     if len(rounds) < cem.num_iterations + 1:
       i = jnp.argmax(quality)
       better = quality[i] > earlier[1]
@@ -210,7 +203,7 @@ def cem_policy(key: jax.Array, observation: Observation, policy: CEMPolicy, samp
   grasp, q = jax.tree.map(lambda a, b: jnp.where(last_ok, a, b), (_take(grasps, best), quality[best]), earlier)
   action = action_from_grasp(observation, grasp, jnp.where(jnp.isfinite(q), q, 0.0), jnp.isfinite(q))
   if samples:
-    action = action.replace(samples=jax.tree.map(lambda *xs: jnp.stack(xs), *rounds))
+    action = action.replace(samples=jax.tree.map(lambda *xs: jnp.concatenate(xs), *rounds))
   return action
 
 

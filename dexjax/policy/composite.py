@@ -37,7 +37,8 @@ def _invalid_like(action: GraspAction) -> GraspAction:
 
 
 def _per_gripper(names: list[str], actions: list[GraspAction]) -> GraspAction:
-  """The actions of grippers ``names`` stacked in `GRIPPERS` order, invalid placeholders for the others."""
+  """The actions of grippers ``names`` stacked in `GRIPPERS` order; a gripper without one gets an all-zero action
+  (``valid`` False)."""
   by_name = dict(zip(names, actions))
   filler = _invalid_like(actions[0])
   return stack_actions([by_name.get(name, filler.replace(gripper=jnp.int32(i))) for i, name in enumerate(GRIPPERS)])

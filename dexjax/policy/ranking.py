@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from dexjax.policy.actions import GraspAction, PolicySamples, action_from_grasp
+from dexjax.policy.actions import GraspAction, action_from_grasp, samples_of
 from dexjax.policy.candidates import Sampler, sample_candidates, sampler_gripper
 from dexjax.policy.observation import Observation
 
@@ -58,11 +58,6 @@ class RandomPolicy:
     return random_policy(key, observation, self, samples)
 
 
-def _samples(grasps, quality: jax.Array, valid: jax.Array) -> PolicySamples:
-  return PolicySamples(center=grasps.center[None], angle=grasps.angle[None], depth=grasps.depth[None],
-                       quality=quality[None], valid=valid[None])
-
-
 def ranking_policy(key: jax.Array, observation: Observation, policy: RankingPolicy,
                    samples: bool = False) -> GraspAction:
   """The best of N sampled candidates by the policy's scorer (``valid`` False when there is none). ``samples``
@@ -73,7 +68,7 @@ def ranking_policy(key: jax.Array, observation: Observation, policy: RankingPoli
   ok = jnp.isfinite(quality[best])
   action = action_from_grasp(observation, jax.tree.map(lambda x: x[best], grasps),
                              jnp.where(ok, quality[best], 0.0), ok)
-  return action.replace(samples=_samples(grasps, quality, valid)) if samples else action
+  return action.replace(samples=samples_of(grasps, quality, valid)) if samples else action
 
 
 def random_policy(key: jax.Array, observation: Observation, policy: RandomPolicy,
@@ -91,7 +86,7 @@ def random_policy(key: jax.Array, observation: Observation, policy: RandomPolicy
   if not samples:
     return action
   quality = jnp.where(valid, jnp.where(jnp.arange(valid.shape[0]) == pick, probability, jnp.nan), -jnp.inf)
-  return action.replace(samples=_samples(grasps, quality, valid))
+  return action.replace(samples=samples_of(grasps, quality, valid))
 
 
 __all__ = ['RandomPolicy', 'RankingPolicy', 'random_policy', 'ranking_policy']

@@ -60,11 +60,4 @@ class GQCNNScorer:
     return self.model(self.crops(observation, grasps), pose_inputs(grasps))
 
 
-def check_scorer(scorer, gripper: str) -> None:
-  """Raises ValueError unless ``scorer`` scores ``gripper``'s grasps (names both)."""
-  if getattr(scorer, 'gripper', None) != gripper:
-    raise ValueError(f"scorer: expected a scorer of gripper {gripper!r}, got {type(scorer).__name__} of gripper "
-                     f"{getattr(scorer, 'gripper', None)!r}")
-
-
-__all__ = ['GRIPPERS', 'PARALLEL_JAW', 'SUCTION', 'GQCNNScorer', 'check_scorer', 'pose_inputs']
+__all__ = ['GRIPPERS', 'PARALLEL_JAW', 'SUCTION', 'GQCNNScorer', 'pose_inputs']
