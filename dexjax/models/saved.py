@@ -100,7 +100,7 @@ def save_model(directory: str | os.PathLike, step: int, model: GraspQualityModel
   return directory / str(step)
 
 
-def _config_from_json(data: dict[str, Any]) -> GQCNNConfig:
+def config_from_json(data: dict[str, Any]) -> GQCNNConfig:
   fields = {f.name for f in dataclasses.fields(GQCNNConfig)}
   return GQCNNConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in fields})
 
@@ -143,7 +143,7 @@ def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityMod
     step, meta = _read_meta(manager, directory)
     if gripper is not None and meta['gripper'] != gripper:
       raise ValueError(f"{directory}: field 'gripper': expected {gripper!r}, got {meta['gripper']!r}")
-    config = _config_from_json(meta['config'])
+    config = config_from_json(meta['config'])
     template = {'params': init_gqcnn(jax.random.key(0), config),
                 'normalization': Normalization.identity(config.pose_dim)}
     template = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), template)
@@ -159,4 +159,4 @@ def model_info(path: str | os.PathLike, gripper: str | None = None) -> dict[str,
     return _read_meta(manager, directory)[1]['info']
 
 
-__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'load', 'model_info', 'predict', 'save_model']
+__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'config_from_json', 'load', 'model_info', 'predict', 'save_model']
