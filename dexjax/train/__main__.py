@@ -2,7 +2,8 @@
 
   python -m dexjax.train                      # quick start: built-in dataset (generated once), both grippers
   python -m dexjax.train --config configs/dexnet4_pj.yaml --data DIR [--out OUT] [--resume]
-      [--grippers parallel_jaw suction] [--epochs N] [--seed S] [--cache-dir DIR] [--no-progress] [--json]
+      [--grippers parallel_jaw suction] [--epochs N] [--seed S] [--init pretrained|RUN|MODEL] [--cache-dir DIR]
+      [--no-progress] [--json]
       [--distributed [--coordinator HOST:PORT --num-processes N --process-id I]]
 
 Writes OUT/metrics.jsonl (one JSON object per epoch and gripper), OUT/curves.png, OUT/<gripper>/best (the best
@@ -11,6 +12,10 @@ to runs/<config name>-<date-time>; --resume without --out continues the newest s
 or empty OUT; --resume needs an earlier run there. A training split that cannot teach anything (one label only,
 less than a batch) is refused before anything is written. Exit code 0 on success, 1 when generating the quick-start
 dataset failed, 2 for bad input (docs/errors.md).
+
+--init pretrained fine-tunes the shipped models (dexjax.models.pretrained) on --data instead of starting from random
+weights: the run takes their architecture and input normalisation (docs/models.md); --init RUN or MODEL starts
+from another trained run or saved model.
 """
 
 from __future__ import annotations
@@ -36,6 +41,8 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--grippers', nargs='+', choices=('parallel_jaw', 'suction'), help='replaces the config\'s grippers')
   p.add_argument('--epochs', type=int, help='replaces loop.epochs')
   p.add_argument('--seed', type=int, help='replaces the config\'s seed')
+  p.add_argument('--init', metavar='pretrained|RUN|MODEL', help='fine-tune: start from the shipped models '
+                 '(pretrained), a training run or a saved model; replaces the config\'s init')
   p.add_argument('--cache-dir', help='object, supervisor and quick-start dataset cache (default $DEXJAX_CACHE or '
                                      '~/.cache/dexjax/objects)')
   p.add_argument('--no-progress', action='store_true', help='no progress bars')
@@ -74,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, epochs=args.epochs))
   if args.seed is not None:
     config = dataclasses.replace(config, seed=args.seed)
+  if args.init is not None:
+    config = dataclasses.replace(config, init=args.init)
   config = config.validate('command line')
   name = Path(args.config).stem if args.config else 'quickstart'
   out = _out_dir(args, name)

@@ -93,6 +93,9 @@ class TrainConfig:
       ``model.crop_size`` (96 -> 32: 3x downsampling, bilinear; equal sizes: nearest, as gqcnn).
     optimizer, loop, split, checkpoint: see their classes.
     quickstart: the built-in dataset used without ``--data``.
+    init: start from trained weights instead of random ones (fine-tuning): ``''`` (none), ``'pretrained'`` (the
+      shipped models, `dexjax.models.pretrained`), a training run, a saved model directory or a model file. The
+      run then takes its architecture (``model``, ``crop_window``) and input normalisation from those models.
   """
 
   seed: int = 0
@@ -104,6 +107,7 @@ class TrainConfig:
   split: SplitConfig = SplitConfig()
   checkpoint: CheckpointConfig = CheckpointConfig()
   quickstart: QuickstartData = QuickstartData()
+  init: str = ''
 
   def model_config(self, gripper: str) -> GQCNNConfig:
     """The architecture of ``gripper``'s network (pose dimension 1 for the parallel jaw, 2 for suction)."""
@@ -172,7 +176,7 @@ def _model(values: Mapping[str, Any] | None, source: str) -> GQCNNConfig:
   return dataclasses.replace(override(model, values, source=source, section='model', minimum=0), **tuples)
 
 
-_TOP = ('seed', 'grippers', 'model', 'crop_window', 'optimizer', 'loop', 'split', 'checkpoint', 'quickstart')
+_TOP = ('seed', 'grippers', 'model', 'crop_window', 'optimizer', 'loop', 'split', 'checkpoint', 'quickstart', 'init')
 
 
 def train_config_from_dict(data: Mapping[str, Any], source: str = '<config>') -> TrainConfig:
@@ -183,8 +187,8 @@ def train_config_from_dict(data: Mapping[str, Any], source: str = '<config>') ->
   """
   check_sections(data, _TOP, source=source)
   c = TrainConfig()
-  scalars = override(c, {k: data[k] for k in ('seed', 'crop_window') if k in data}, source=source, section='',
-                     minimum=0)
+  scalars = override(c, {k: data[k] for k in ('seed', 'crop_window', 'init') if k in data}, source=source,
+                     section='', minimum=0)
   quickstart = dict(data.get('quickstart') or {})
   objects = quickstart.pop('objects', None)
   qs = override(c.quickstart, quickstart, source=source, section='quickstart', minimum=1)

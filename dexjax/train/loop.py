@@ -87,7 +87,7 @@ class Interrupted(Exception):
 
 def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, config: TrainConfig, gripper: str,
                   stats: GripperStats, *, resume: bool = False, progress: bool = False,
-                  stop_after_steps: int | None = None, log=print) -> dict[str, Any]:
+                  stop_after_steps: int | None = None, log=print, init_params: Any = None) -> dict[str, Any]:
   """Trains ``gripper``'s GQ-CNN for ``config.loop.epochs`` epochs; returns the best epoch's record.
 
   Args:
@@ -101,6 +101,7 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
     progress: show a progress bar.
     stop_after_steps: stop (raising `Interrupted`, without saving) once the state reaches this step.
     log: where per-epoch lines go.
+    init_params: parameters to start from (fine-tuning; same architecture) instead of a random initialisation.
 
   Raises:
     FileExistsError: checkpoints exist and ``resume`` is False.
@@ -116,6 +117,8 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
   schedule = learning_rate_schedule(config.optimizer, steps_per_epoch)
   key = jax.random.key(config.seed)
   state = create_state(jax.random.fold_in(key, 0), model_config, make_optimizer(config.optimizer, steps_per_epoch))
+  if init_params is not None:
+    state = state.replace(params=jax.tree.map(jax.numpy.asarray, init_params))
   progress_data = {'epoch': 0, 'batch': 0, 'loss_sum': 0.0, 'accuracy_sum': 0.0, 'best': None, 'best_record': None,
                    'normalization': normalization_to_json(stats.normalization), 'config': config_to_dict(config),
                    'gripper': gripper}

@@ -105,6 +105,31 @@ def _check_resume_config(out: Path, config: TrainConfig) -> None:
                      f'loop.epochs may change), or train into another --out')
 
 
+def apply_init(config: TrainConfig) -> tuple[TrainConfig, dict[str, Any]]:
+  """(config, models): without ``config.init``, the config unchanged and no models; with it, the GQ-CNNs to
+  start from (by gripper) and the config with their architecture (``model``, ``crop_window``).
+
+  Raises:
+    FileNotFoundError, ValueError: ``config.init`` names nothing loadable, lacks a model of one of the run's
+      grippers, or holds grippers of different architectures (naming the field ``init``).
+  """
+  if not config.init:
+    return config, {}
+  from dexjax.models.pretrained import load_models  # pylint: disable=g-import-not-at-top (circular at import)
+  models = load_models(config.init, config.grippers)
+  missing = [g for g in config.grippers if g not in models]
+  if missing:
+    raise ValueError(f"init: {config.init}: no model of {' and '.join(missing)} there (has {sorted(models)}); "
+                     f"expected 'pretrained', a training run of these grippers, or train only --grippers "
+                     f"{' '.join(sorted(models))}")
+  shapes = {(dataclasses.replace(m.config, pose_dim=config.model.pose_dim), m.crop_window) for m in models.values()}
+  if len(shapes) > 1:
+    raise ValueError(f'init: {config.init}: the grippers\' models differ in architecture; fine-tune one gripper at '
+                     f'a time (--grippers)')
+  (model, window), = shapes
+  return dataclasses.replace(config, model=model, crop_window=window), models
+
+
 def _stats_json(stats: dict[str, GripperStats]) -> dict[str, Any]:
   return {g: {'train_rows': s.train_rows, 'train_positives': s.train_positives,
               'positive_rate': s.positive_rate, 'normalization': normalization_to_json(s.normalization)}
@@ -128,11 +153,16 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
                             f'dexjax.generate, or leave out --data for the built-in quick-start set')
   if is_main_process():
     check_run_dir(out, resume=resume)
+  config, init = apply_init(config)
   if resume:
     _check_resume_config(out, config)
   stats = dataset_stats(data_dir, config)
+  stats = {g: dataclasses.replace(s, normalization=init[g].normalization) if g in init else s
+           for g, s in stats.items()}  # fine-tuning keeps the input scale the weights were trained with
   for gripper in config.grippers:
     check_trainable(gripper, stats[gripper], config, data_dir)
+  if init:
+    log(f'fine-tuning from {config.init}: {config.model}, {config.crop_window}-pixel windows')
   log(f'training into {out}')
   if is_main_process():
     out.mkdir(parents=True, exist_ok=True)
@@ -143,7 +173,8 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
   results = {}
   for gripper in config.grippers:
     results[gripper] = train_gripper(data_dir, out, config, gripper, stats[gripper], resume=resume,
-                                     progress=progress, log=log)
+                                     progress=progress, log=log,
+                                     init_params=init[gripper].params if gripper in init else None)
   summary = {'grippers': results, 'seconds': time.perf_counter() - start, 'data': os.fspath(data_dir),
              'out': os.fspath(out)}
   if is_main_process():
@@ -152,4 +183,4 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
   return summary
 
 
-__all__ = ['CONFIG_FILE', 'STATS_FILE', 'SUMMARY_FILE', 'check_run_dir', 'quickstart_dataset', 'train_run']
+__all__ = ['CONFIG_FILE', 'STATS_FILE', 'SUMMARY_FILE', 'apply_init', 'check_run_dir', 'quickstart_dataset', 'train_run']
