@@ -2,7 +2,8 @@
 
   python -m dexjax.evaluate --checkpoint CKPT --data DIR [--split all|train|val] [--gripper G] [--batch-size B]
 
-CKPT is a training run directory (every gripper trained in it), ``RUN/<gripper>`` or a saved model directory.
+CKPT is ``pretrained`` (the models shipped with dexjax, docs/models.md), a training run directory (every gripper
+trained in it), ``RUN/<gripper>``, a saved model directory or a model file (``.msgpack``).
 The data may come from other objects than the training set. ``--split all`` (the default) scores every row;
 ``train`` / ``val`` use the run's split rule (from ``RUN/config.yaml`` when present, else the default). Prints
 ``{"checkpoint", "data", "split", "grippers": {gripper: {accuracy, balanced_accuracy, precision, recall,
@@ -23,7 +24,8 @@ from dexjax.cli import command
 
 def _parser() -> argparse.ArgumentParser:
   p = argparse.ArgumentParser(prog='python -m dexjax.evaluate', description=__doc__.split('\n\n')[0])
-  p.add_argument('--checkpoint', required=True, help='run directory, RUN/<gripper>, or a saved model directory')
+  p.add_argument('--checkpoint', required=True, help='pretrained (the shipped models), a run directory, '
+                                                     'RUN/<gripper>, a saved model directory or a model file')
   p.add_argument('--data', required=True, help='dataset directory (python -m dexjax.generate)')
   p.add_argument('--split', choices=('all', 'train', 'val'), default='all', help='rows to score (default all)')
   p.add_argument('--gripper', choices=('parallel_jaw', 'suction'), help='only this gripper (from a run directory)')
@@ -47,22 +49,21 @@ def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
   from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top (slow imports after parsing)
   from dexjax.data.shards import GRIPPER_NAMES  # pylint: disable=g-import-not-at-top
-  from dexjax.models.saved import load  # pylint: disable=g-import-not-at-top
+  from dexjax.models.pretrained import PRETRAINED, load_models  # pylint: disable=g-import-not-at-top
+  from dexjax.train.config import TrainConfig  # pylint: disable=g-import-not-at-top
   from dexjax.train.validation import evaluate_model  # pylint: disable=g-import-not-at-top
-  checkpoint = Path(args.checkpoint).absolute()
+  checkpoint = args.checkpoint if args.checkpoint == PRETRAINED else Path(args.checkpoint).absolute()
   if args.batch_size < 1:
     raise ValueError(f'--batch-size: expected an integer >= 1, got {args.batch_size}')
   if not os.path.isdir(args.data) or not list_shards(args.data):
     raise FileNotFoundError(f'{args.data}: no dataset shards (shard-*.npz)')
-  config = _run_config(checkpoint)
+  config = _run_config(Path(checkpoint)) if checkpoint != PRETRAINED else TrainConfig()
   config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, eval_batch_size=args.batch_size))
-  run_grippers = [g for g in GRIPPER_NAMES if (checkpoint / g).is_dir()]
-  if run_grippers:
-    models = [load(checkpoint, g) for g in run_grippers if args.gripper in (None, g)]
-  else:
-    models = [load(checkpoint, args.gripper)]
+  wanted = (args.gripper,) if args.gripper else GRIPPER_NAMES
+  found = load_models(checkpoint, wanted)
+  models = [found[g] for g in GRIPPER_NAMES if g in found and g in wanted]
   if not models:
-    raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {run_grippers})')
+    raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {sorted(found)})')
   results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress)
              for m in models}
   print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': os.fspath(Path(args.data).absolute()),

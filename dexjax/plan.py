@@ -1,6 +1,6 @@
 """``python -m dexjax.plan``: plan a grasp on a depth image with a Dex-Net 4.0 policy.
 
-  python -m dexjax.plan DEPTH --intrinsics K --model RUN --out plan.json [--png plan.png]
+  python -m dexjax.plan DEPTH --intrinsics K --out plan.json [--png plan.png] [--model pretrained|RUN|MODEL]
                         [--policy ambidextrous|parallel_jaw|suction|ranking|random|suction_heuristic|
                                   composite_heuristic]
                         [--segmask M | --background EMPTY_BIN | --segment auto|plane|none] [--depth-scale S]
@@ -11,8 +11,9 @@ unit, default 0.001: millimetres). K is an intrinsics file (JSON, ROS CameraInfo
 sized like the image. Missing pixels (0, NaN) are inpainted and never hold a grasp. Grasps are centred on object
 pixels: ``--segmask`` (a PNG or ``.npy``, non-zero = objects), else pixels closer than an empty-bin image
 (``--background``), else pixels above the dominant plane (bin floor or table, ``--segment plane``, the default
-``auto``); ``--segment none`` allows every pixel. ``--model`` is a training run (``python -m dexjax.train``; its
-``<gripper>/best`` models) or one gripper's saved model; the heuristic policies need none. ``--camera-pose`` (a
+``auto``); ``--segment none`` allows every pixel. ``--model`` is ``pretrained`` (the default: the GQ-CNNs shipped with
+dexjax, docs/models.md), a training run (``python -m dexjax.train``; its ``<gripper>/best`` models), one gripper's
+saved model or a model file; the heuristic policies need none. ``--camera-pose`` (a
 dexjax camera JSON with ``rotation`` and ``position``, or a 4 x 4 world-from-camera matrix as JSON or ``.npy``)
 adds the grasp's world pose. Compiled plans are kept in ``$DEXJAX_CACHE/jax`` (JAX's persistent compilation
 cache): the first plan for an image size and network architecture compiles (tens of seconds), later runs much less.
@@ -46,7 +47,9 @@ def _parser() -> argparse.ArgumentParser:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
   p.add_argument('depth', metavar='DEPTH', help='depth image: .npy (metres) or 16-bit PNG (see --depth-scale)')
   p.add_argument('--intrinsics', required=True, metavar='K', help='intrinsics file (JSON, ROS CameraInfo)')
-  p.add_argument('--model', metavar='RUN', help='training run directory or a saved GQ-CNN (learned policies)')
+  p.add_argument('--model', metavar='RUN', default='pretrained',
+                 help='GQ-CNNs of the learned policies: pretrained (default: the shipped models), a training run '
+                      'directory, a saved model directory or a model file')
   p.add_argument('--policy', choices=_POLICIES, default='ambidextrous', help='policy (default ambidextrous)')
   p.add_argument('--out', required=True, metavar='plan.json', help='output JSON')
   p.add_argument('--png', metavar='plan.png', help='also draw the plan and the policy samples')
@@ -81,7 +84,7 @@ def _check_args(args: argparse.Namespace) -> None:
     raise ValueError('--segmask: expected no --background / --segment with it (the given mask decides)')
   for option, path in (('DEPTH', args.depth), ('--intrinsics', args.intrinsics), ('--segmask', args.segmask),
                        ('--background', args.background), ('--camera-pose', args.camera_pose),
-                       ('--model', args.model)):
+                       ('--model', None if args.model == 'pretrained' else args.model)):
     if path is not None and not os.path.exists(path):
       raise FileNotFoundError(f"{option}: '{path}': no such file or directory")
   check_distinct(('--out', args.out), ('--png', args.png))
@@ -90,18 +93,13 @@ def _check_args(args: argparse.Namespace) -> None:
     check_output_file(args.png, option='--png', owned=is_dexjax_png, overwrite=args.overwrite)
 
 
-def _load_models(path: str | None, policy: str) -> dict:
-  """GQ-CNNs by gripper from a training run (every gripper it holds) or one saved model."""
-  from dexjax.models.saved import BEST_DIR, load  # pylint: disable=g-import-not-at-top
+def _load_models(spec: str, policy: str) -> dict:
+  """GQ-CNNs by gripper: the shipped ones, a training run's (every gripper it holds) or one saved model."""
+  from dexjax.models.pretrained import load_models  # pylint: disable=g-import-not-at-top
   from dexjax.policy.presets import uses_models  # pylint: disable=g-import-not-at-top
-  if path is None or not uses_models(policy):
-    return {}  # `make_policy` names the models a learned policy misses
-  root = Path(path)
-  grippers = [g for g in ('parallel_jaw', 'suction') if (root / g / BEST_DIR).is_dir()]
-  if grippers:
-    return {g: load(root, g) for g in grippers}
-  model = load(root)
-  return {model.gripper: model}
+  if not uses_models(policy):
+    return {}
+  return load_models(spec)  # `make_policy` names the models a learned policy misses
 
 
 def _camera_pose(path: str):
@@ -223,7 +221,8 @@ def main(argv: list[str] | None = None) -> int:
   plan_s = time.perf_counter() - start
   plan = _plan_json(action, args.policy, names)
   plan.update(plan_s=round(plan_s, 4), compile_s=round(compile_s, 3), seed=args.seed, observation=info,
-              model=os.fspath(Path(args.model).absolute()) if models else None)
+              model=(args.model if args.model == 'pretrained' else os.fspath(Path(args.model).absolute()))
+              if models else None)
   if world is not None and plan['gripper'] is not None:
     plan['pose_world'] = (world @ np.asarray(plan['pose'])).round(6).tolist()
   atomic_write(args.out, lambda f: f.write((json.dumps(plan, indent=1) + '\n').encode()))

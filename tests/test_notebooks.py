@@ -41,7 +41,7 @@ def test_policy_notebook_runs(cache_dir, monkeypatch):
   from scipy import ndimage
 
   monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
-  monkeypatch.delenv("DEXJAX_MODEL", raising=False)  # the untrained networks
+  monkeypatch.delenv("DEXJAX_MODEL", raising=False)  # the shipped models
   matplotlib.use("Agg")
   src = _code(NOTEBOOKS / "policy.ipynb")
   small = {"NUM_SEED = 250": "NUM_SEED = 40", "NUM_RESAMPLE = 50": "NUM_RESAMPLE = 16",
@@ -90,3 +90,27 @@ def test_policy_notebook_runs(cache_dir, monkeypatch):
   assert bool(real_action.valid) and mask[pixel(real_action)]
   assert ndimage.binary_dilation(objects, iterations=2)[pixel(real_action)]
   assert jax.tree.structure(real_obs) == jax.tree.structure(scope["obs"])
+
+
+def test_analysis_notebook_runs(cache_dir, monkeypatch):
+  """Fig. S1 on the shipped models: filters, top-activating crops and a t-SNE per layer for both grippers, and the
+  notebook's verdict on the seed's finding. Few images and examples."""
+  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
+  matplotlib.use("Agg")
+  src = _code(NOTEBOOKS / "analysis.ipynb")
+  small = {"NUM_IMAGES = 48": "NUM_IMAGES = 16", "NUM_TSNE = 1000": "NUM_TSNE = 150", "TOP_K = 8": "TOP_K = 3"}
+  for full, reduced in small.items():
+    assert full in src
+    src = src.replace(full, reduced)
+  shown = []
+  scope: dict = {"display": shown.append}
+  exec(compile(src, "analysis.ipynb", "exec"), scope)
+  assert len(shown) == 6  # (A), (B), (C) for each gripper
+  assert all(isinstance(fig, matplotlib.figure.Figure) for fig in shown)
+  layers, names = scope["layers"], scope["names"]
+  assert set(layers) == {"parallel_jaw", "suction"}
+  for gripper, result in layers.items():
+    assert list(result) == list(names)
+    assert all(0.0 <= r["separation"] <= 1.0 and r["embedding"].shape == (150, 2) for r in result.values())
+    assert result["output"]["separation"] > 0.6, gripper  # the logits separate what the network predicts well
+  assert set(scope["verdict"]) == {"parallel_jaw", "suction"}

@@ -3,8 +3,8 @@ on (level 2, seeds 500-505), with the camera's intrinsics file: every policy ret
 (its pixel inside that object's rendered mask) with a 4 x 4 pose; a noisy 16-bit PNG with holes still plans; bad
 input gets one clear error line, and an image without graspable pixels a documented "no grasp" result.
 
-The GQ-CNNs are untrained quick-start networks (what they predict does not matter here; where the policies may
-look does): pretrained weights are the next issue's.
+Most tests use untrained quick-start networks (what they predict does not matter there; where the policies may
+look does); without ``--model`` the shipped models plan.
 """
 
 from __future__ import annotations
@@ -112,10 +112,17 @@ def test_bad_input_gets_one_clear_error(scene, tmp_path, capsys):
   assert plan_main([str(tmp_path / 'nan.npy'), '--intrinsics', str(root / 'K.json'), '--out', str(tmp_path / 'p.json'),
                     '--policy', 'suction_heuristic']) == 2
   assert 'no valid' in capsys.readouterr().err
-  assert plan_main([str(root / 'depth.npy'), '--intrinsics', str(root / 'K.json'), '--out',
-                    str(tmp_path / 'p.json')]) == 2
-  assert '--model' in capsys.readouterr().err
   assert not (tmp_path / 'p.json').exists()
+
+
+def test_without_model_the_shipped_models_plan(scene, tmp_path):
+  """A fresh install plans at once: no --model, no training run, no network."""
+  root, mask = scene
+  assert plan_main([str(root / 'depth.npy'), '--intrinsics', str(root / 'K.json'), '--out', str(tmp_path / 'p.json'),
+                    '--num-candidates', '100']) == 0
+  plan = json.loads((tmp_path / 'p.json').read_text())
+  assert plan['model'] == 'pretrained' and plan['gripper'] in ('parallel_jaw', 'suction')
+  assert _on_object(plan, mask) and 0.0 <= plan['probability'] <= 1.0
 
 
 def test_no_graspable_pixel_is_a_documented_no_grasp_result(scene, tmp_path):

@@ -80,7 +80,8 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
 
   Args:
     name: one of `POLICY_NAMES`.
-    models: GQ-CNNs by gripper (``'parallel_jaw'``, ``'suction'``).
+    models: GQ-CNNs by gripper (``'parallel_jaw'``, ``'suction'``); None: the shipped models
+      (`dexjax.models.pretrained`) of the grippers the policy scores with.
     cem: CEM preset, ``'seed'`` or ``'gqcnn'``.
     num_candidates: candidates per gripper of the ranking, random and heuristic policies.
 
@@ -89,7 +90,10 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
       the wrong gripper.
   """
   _check_name(name)
-  models = dict(models or {})
+  if models is None:
+    from dexjax.models.pretrained import pretrained  # pylint: disable=g-import-not-at-top (flax/orbax import)
+    models = {g: pretrained(g) for g in (GRIPPERS if uses_models(name) else ())}
+  models = dict(models)
   for gripper, model in models.items():
     if model.gripper != gripper:
       raise ValueError(f"models[{gripper!r}]: expected a {gripper} GQ-CNN, got a {model.gripper} one")
