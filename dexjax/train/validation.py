@@ -47,4 +47,26 @@ def evaluate_model(model: GraspQualityModel, data_dir: str | os.PathLike, config
   return metrics
 
 
-__all__ = ['evaluate_model']
+def sample_examples(model: GraspQualityModel, data_dir: str | os.PathLike, num: int, config: TrainConfig = TrainConfig(),
+                    split: str = 'val', seed: int = 0) -> dict[str, np.ndarray]:
+  """A uniformly random subset of ``num`` rows of ``model``'s gripper in ``split``, as the model sees them:
+  ``{'crops': (n, S, S, 1) metres, 'poses': (n, pose_dim), 'labels': (n,)}``, n = min(num, rows). One streaming
+  pass (each row gets a random key; the ``num`` smallest are kept), so memory stays at ``num`` rows."""
+  config = dataclasses.replace(config, model=model.config, crop_window=model.crop_window)
+  rng = np.random.default_rng(seed)
+  kept: dict[str, np.ndarray] | None = None
+  for batch in eval_batches(data_dir, config, model.gripper, split):
+    mask = batch['mask']
+    rows = {'crops': np.asarray(batch['crops'])[mask], 'poses': np.asarray(batch['poses'])[mask],
+            'labels': np.asarray(batch['labels'])[mask], 'key': rng.random(int(mask.sum()))}
+    kept = rows if kept is None else {k: np.concatenate([kept[k], v]) for k, v in rows.items()}
+    if len(kept['key']) > num:
+      order = np.argpartition(kept['key'], num)[:num]
+      kept = {k: v[order] for k, v in kept.items()}
+  if kept is None:
+    raise ValueError(f'{os.fspath(data_dir)}: no {model.gripper} rows in split {split!r}')
+  order = np.argsort(kept.pop('key'))
+  return {k: v[order] for k, v in kept.items()}
+
+
+__all__ = ['evaluate_model', 'sample_examples']
