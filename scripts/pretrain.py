@@ -1,0 +1,163 @@
+"""How the shipped GQ-CNNs are made: learning curves, training, scoring on unseen objects, and shipping.
+
+  python scripts/pretrain.py curve --data DIR --eval NAME=DIR ... --out OUT [--fractions 0.125 0.25 0.5 1]
+                                   [--config configs/pretrained.yaml] [--epochs E] [--name PREFIX]
+                                   [--total-shards N]
+  python scripts/pretrain.py score --run RUN --eval NAME=DIR ...
+  python scripts/pretrain.py ship --run RUN --eval NAME=DIR ... --data DIR --data-command "..." \
+                                  --train-command "..."
+
+``curve`` trains one run per fraction of the dataset's shards (the first k shards: shards hold independent
+heaps, so a prefix is a uniform subset) into ``OUT/rows-<fraction>``, each resumable (rerun the same command), and
+scores each run's best models on its validation split and on every ``--eval`` dataset (objects never used in
+training); it writes ``OUT/curve.json`` after each run and prints it. ``score`` prints the same scores for one run.
+``ship`` writes the run's best models into the package (``dexjax/models/weights/<gripper>.msgpack``, read by
+`dexjax.models.pretrained`) with a model card's facts in their ``info``: the data (command, objects, rows), the
+network, the training (command, seconds) and the metrics. Nothing here is needed to *use* the shipped models.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from dexjax.data.loader import list_shards
+from dexjax.models import load, num_parameters, save_model_file
+from dexjax.models.pretrained import pretrained_path
+from dexjax.train import evaluate_model, load_train_config, read_records, train_run
+from dexjax.train.run import CONFIG_FILE, SUMMARY_FILE
+
+METRICS = ('balanced_accuracy', 'accuracy', 'precision', 'recall', 'average_precision', 'loss', 'examples',
+           'positives')
+
+
+def _evals(items: list[str]) -> dict[str, Path]:
+  out = {}
+  for item in items:
+    name, _, path = item.partition('=')
+    if not path or not list_shards(path):
+      raise SystemExit(f'--eval {item}: expected NAME=DIR of a generated dataset')
+    out[name] = Path(path)
+  return out
+
+
+def _subset(data: Path, fraction: float, root: Path, total: int | None = None) -> Path:
+  """A directory of links to the first ``fraction`` of ``data``'s shards, or of its first ``total`` shards (a
+  dataset still being generated: those shards must be there)."""
+  shards = list_shards(data)
+  k = max(1, round(fraction * (total or len(shards))))
+  names = {Path(s).name for s in shards}
+  missing = [i for i in range(k) if f'shard-{i:06d}.npz' not in names]
+  if missing:
+    raise SystemExit(f'{data}: shard {missing[0]} of the first {k} is not written yet')
+  shards = sorted(shards, key=lambda s: Path(s).name)
+  out = root / f'shards-{k}'
+  out.mkdir(parents=True, exist_ok=True)
+  for shard in shards[:k]:
+    link = out / Path(shard).name
+    if not link.exists():
+      link.symlink_to(Path(shard).absolute())
+  return out
+
+
+def score_run(run: Path, evals: dict[str, Path]) -> dict:
+  """Each gripper's best model on its run's validation split and on every evaluation dataset."""
+  config = load_train_config(run / CONFIG_FILE)
+  scores = {}
+  for gripper in config.grippers:
+    model = load(run, gripper)
+    best = [r for r in read_records(run) if r['gripper'] == gripper]
+    entry = {'validation': {k: max(best, key=lambda r: r['val_balanced_accuracy'] or 0).get(f'val_{k}')
+                            for k in METRICS}}
+    for name, path in evals.items():
+      metrics = evaluate_model(model, path, config, 'all')
+      entry[name] = {k: metrics.get(k) for k in METRICS}
+    scores[gripper] = entry
+  return scores
+
+
+def _curve(args) -> dict:
+  data, out, evals = Path(args.data), Path(args.out), _evals(args.eval)
+  config = load_train_config(args.config)
+  if args.epochs:
+    config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, epochs=args.epochs))
+  result_path = out / 'curve.json'
+  results = json.loads(result_path.read_text()) if result_path.exists() else {}
+  for fraction in args.fractions:
+    subset = _subset(data, fraction, out / 'subsets', args.total_shards)
+    run = out / f'{args.name}rows-{fraction:g}'
+    key = f'{args.name}{fraction:g}'
+    if key in results and results[key].get('done'):
+      continue
+    summary = train_run(config, subset, run, resume=(run / CONFIG_FILE).exists(), progress=False)
+    stats = json.loads((run / 'stats.json').read_text())
+    results[key] = {'config': args.config, 'fraction': fraction, 'shards': len(list_shards(subset)), 'train_rows': {g: s['train_rows'] for g, s in stats.items()},
+                    'train_seconds': summary['seconds'], 'scores': score_run(run, evals), 'done': True}
+    out.mkdir(parents=True, exist_ok=True)
+    result_path.write_text(json.dumps(results, indent=1) + '\n')
+  return results
+
+
+def _ship(args) -> dict:
+  run, evals = Path(args.run), _evals(args.eval)
+  config = load_train_config(run / CONFIG_FILE)
+  summary = json.loads((run / SUMMARY_FILE).read_text())
+  stats = json.loads((run / 'stats.json').read_text())
+  data_config = json.loads((Path(args.data) / 'config.json').read_text())
+  scores = score_run(run, evals)
+  written = {}
+  for gripper in config.grippers:
+    model = load(run, gripper)
+    info = {
+        'data': {'command': args.data_command, 'objects': data_config['config']['objects']['sources'],
+                 'shards': len(list_shards(args.data)), 'train_rows': stats[gripper]['train_rows'],
+                 'positive_rate': stats[gripper]['positive_rate'],
+                 'camera': data_config['config']['camera'], 'gripper': data_config['config']['grippers'][gripper]},
+        'network': {'crop_size': model.config.crop_size, 'crop_window': model.crop_window,
+                    'parameters': num_parameters(model.params)},
+        'training': {'command': args.train_command, 'seconds': summary['seconds'],
+                     'epochs': config.loop.epochs, 'best': summary['grippers'][gripper]},
+        'metrics': scores[gripper], 'date': time.strftime('%Y-%m-%d')}
+    written[gripper] = os.fspath(save_model_file(pretrained_path(gripper), model, info))
+  return {'written': written, 'metrics': scores}
+
+
+def main(argv: list[str] | None = None) -> int:
+  p = argparse.ArgumentParser(prog='python scripts/pretrain.py', description=__doc__.split('\n\n')[0])
+  sub = p.add_subparsers(dest='command', required=True)
+  c = sub.add_parser('curve')
+  c.add_argument('--data', required=True)
+  c.add_argument('--eval', nargs='+', default=[])
+  c.add_argument('--out', required=True)
+  c.add_argument('--fractions', nargs='+', type=float, default=[0.125, 0.25, 0.5, 1.0])
+  c.add_argument('--config', default='configs/pretrained.yaml')
+  c.add_argument('--epochs', type=int)
+  c.add_argument('--total-shards', type=int, help='fractions of the first N shards (default: of all there are)')
+  c.add_argument('--name', default='', help='prefix of the run directories and result keys (e.g. the network)')
+  s = sub.add_parser('score')
+  s.add_argument('--run', required=True)
+  s.add_argument('--eval', nargs='+', default=[])
+  h = sub.add_parser('ship')
+  h.add_argument('--run', required=True)
+  h.add_argument('--eval', nargs='+', default=[])
+  h.add_argument('--data', required=True)
+  h.add_argument('--data-command', required=True)
+  h.add_argument('--train-command', required=True)
+  args = p.parse_args(argv)
+  if args.command == 'curve':
+    result = _curve(args)
+  elif args.command == 'score':
+    result = score_run(Path(args.run), _evals(args.eval))
+  else:
+    result = _ship(args)
+  print(json.dumps(result, indent=1))
+  return 0
+
+
+if __name__ == '__main__':
+  sys.exit(main())
