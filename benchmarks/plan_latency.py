@@ -13,9 +13,9 @@ lower + compile time, ``plan_s_*`` the median, 10th and 90th percentiles of the 
 ``--plans`` plans with different keys, after compilation, ``plan_cpu_s_*`` the same in process CPU seconds
 (all threads). Two networks (one per gripper each, pose dimensions 1 and 2): ``dexnet4``, the Dex-Net 4.0
 architecture (`GQCNNConfig()`, 96 x 96 crops, 631k parameters), and ``quickstart`` (`GQCNNConfig.small()`,
-32 x 32 crops resampled from 96-pixel windows), randomly initialised with a plausible `Normalization` (the
-compute does not depend on the weights), unless ``--model RUN`` gives a trained run whose models then fill
-the quickstart row.
+32 x 32 crops resampled from 96-pixel windows). The quickstart row uses the shipped models
+(`dexjax.models.pretrained`, that architecture), or ``--model RUN``'s; the dexnet4 row is randomly initialised
+with a plausible `Normalization` (the compute does not depend on the weights).
 
 Baseline, measured in the same run (`_gqcnn_cem_baseline.py`): gqcnn's ``CrossEntropyRobustGraspingPolicy``
 per gripper with the ``AntipodalDepthImageGraspSampler`` / ``DepthImageSuctionPointSampler`` in NumPy and
@@ -66,7 +66,8 @@ import _gqcnn_cem_baseline as baseline  # noqa: E402
 
 from dexjax.models.gqcnn import GQCNNConfig, init_gqcnn, num_parameters  # noqa: E402
 from dexjax.models.normalization import Normalization  # noqa: E402
-from dexjax.models.saved import GraspQualityModel, load, predict  # noqa: E402
+from dexjax.models.pretrained import PRETRAINED, load_models  # noqa: E402
+from dexjax.models.saved import GraspQualityModel, predict  # noqa: E402
 from dexjax.policy import fit_gaussian_mixture, make_policy, plan_grasp, prepare_observation  # noqa: E402
 from dexjax.policy.candidates import sample_candidates  # noqa: E402
 from dexjax.policy.scorers import GRIPPERS  # noqa: E402
@@ -120,11 +121,7 @@ def random_model(gripper: str, config: GQCNNConfig, seed: int) -> GraspQualityMo
 
 def network_rows(args) -> dict[str, dict[str, GraspQualityModel]]:
   rows = {'dexnet4': {g: random_model(g, GQCNNConfig(pose_dim=POSE_DIMS[g]), i) for i, g in enumerate(GRIPPERS)}}
-  if args.model:
-    rows['quickstart'] = {g: load(args.model, g) for g in GRIPPERS}
-  else:
-    rows['quickstart'] = {g: random_model(g, GQCNNConfig.small(pose_dim=POSE_DIMS[g]), i)
-                          for i, g in enumerate(GRIPPERS)}
+  rows['quickstart'] = load_models(args.model or PRETRAINED, GRIPPERS)
   return rows
 
 
@@ -267,7 +264,8 @@ def main() -> None:
   ap = argparse.ArgumentParser()
   ap.add_argument('--quick', action='store_true', help='5 plans, fewer breakdown repeats')
   ap.add_argument('--plans', type=int, default=None, help='timed plans per network (default 10, --quick 5)')
-  ap.add_argument('--model', metavar='RUN', help='trained run (both grippers) for the quickstart row')
+  ap.add_argument('--model', metavar='RUN', help='trained run (both grippers) for the quickstart row (default: the '
+                  'shipped models)')
   ap.add_argument('--seed', type=int, default=0, help='heap, camera and plan keys')
   ap.add_argument('--npz', metavar='HEAP.npz', help='a rendered heap (python -m dexjax.render heap --npz)')
   args = ap.parse_args()
@@ -278,9 +276,8 @@ def main() -> None:
   k = camera.intrinsics
   scene = baseline.Scene(np.asarray(obs.depth), np.asarray(obs.mask), float(k.fx), float(k.fy), float(k.cx),
                          float(k.cy))
-  weights = (f'trained: {args.model} (quickstart row); dexnet4 row random init (init_gqcnn; compute does not '
-             'depend on the weight values)' if args.model else
-             'random init (init_gqcnn), Normalization depth mean 0.7 std 0.05 (pose approach 0 +- 0.3): the '
+  weights = (f'quickstart row: trained, {args.model or "the shipped models (dexjax.models.pretrained)"}; dexnet4 '
+             'row: random init (init_gqcnn), Normalization depth mean 0.7 std 0.05 (pose approach 0 +- 0.3): the '
              'compute does not depend on the weight values')
   result = {'image': {'size': list(depth.shape), 'source': args.npz or f'rendered heap {OBJECTS[0]} seed {args.seed}',
                       'segmask': 'rendered objects (mask >= 0)', 'mask_pixels': info['mask_pixels']},
