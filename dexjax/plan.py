@@ -28,6 +28,7 @@ grasp and the policy's samples per round. When no grasp is found, plan.json has 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -170,19 +171,32 @@ def _samples_numpy(action, names: list[str]) -> dict | None:
   return out
 
 
-def _persistent_compilation_cache() -> None:
-  """Keeps compiled plans in ``$DEXJAX_CACHE/jax`` (JAX's persistent cache), so a rerun on an image of the same
-  size with a model of the same architecture skips most of the compilation. Best effort: an unwritable cache
-  only costs the time."""
+@contextlib.contextmanager
+def _persistent_compilation_cache():
+  """Keeps compiled plans in ``$DEXJAX_CACHE/jax`` (JAX's persistent cache) while the plan compiles, so a rerun on
+  an image of the same size with a model of the same architecture skips most of the compilation. Scoped: JAX's
+  previous cache settings are restored afterwards, so a program (or test session) that calls `main` does not go on
+  writing every later compilation there. Best effort: an unwritable cache only costs the time."""
   import jax  # pylint: disable=g-import-not-at-top
+  from jax.experimental.compilation_cache import compilation_cache  # pylint: disable=g-import-not-at-top
   from dexjax.geometry.cache import default_cache_dir  # pylint: disable=g-import-not-at-top
+  names = ('jax_compilation_cache_dir', 'jax_persistent_cache_min_compile_time_secs')
+  before = {name: getattr(jax.config, name) for name in names}
   try:
     directory = Path(default_cache_dir()) / 'jax'
     directory.mkdir(parents=True, exist_ok=True)
-    jax.config.update('jax_compilation_cache_dir', os.fspath(directory))
-    jax.config.update('jax_persistent_cache_min_compile_time_secs', 1.0)
   except OSError:
-    pass
+    yield
+    return
+  compilation_cache.reset_cache()
+  jax.config.update(names[0], os.fspath(directory))
+  jax.config.update(names[1], 1.0)
+  try:
+    yield
+  finally:
+    for name, value in before.items():
+      jax.config.update(name, value)
+    compilation_cache.reset_cache()
 
 
 @command
@@ -208,13 +222,13 @@ def main(argv: list[str] | None = None) -> int:
   observation, info = prepare_observation(depth, camera, mask, background=background, segment=args.segment,
                                           threshold=args.threshold)
   models = _load_models(args.model, args.policy)
-  _persistent_compilation_cache()
   policy = make_policy(args.policy, models, cem=args.cem, num_candidates=args.num_candidates)
   names = [g for g in GRIPPERS if g in {p.gripper for p in policy.policies}]  # the order of the samples
   key = jax.random.key(args.seed)
   start = time.perf_counter()
-  compiled = jax.jit(plan_grasp, static_argnames='samples').lower(key, observation, policy,
-                                                                  samples=bool(args.png)).compile()
+  with _persistent_compilation_cache():
+    compiled = jax.jit(plan_grasp, static_argnames='samples').lower(key, observation, policy,
+                                                                    samples=bool(args.png)).compile()
   compile_s = time.perf_counter() - start
   start = time.perf_counter()
   action = jax.block_until_ready(compiled(key, observation, policy))

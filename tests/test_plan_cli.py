@@ -118,8 +118,11 @@ def test_bad_input_gets_one_clear_error(scene, tmp_path, capsys):
 def test_without_model_the_shipped_models_plan(scene, tmp_path):
   """A fresh install plans at once: no --model, no training run, no network."""
   root, mask = scene
+  before = jax.config.jax_compilation_cache_dir
   assert plan_main([str(root / 'depth.npy'), '--intrinsics', str(root / 'K.json'), '--out', str(tmp_path / 'p.json'),
                     '--num-candidates', '100']) == 0
+  # Compiled plans go to $DEXJAX_CACHE/jax only while the plan compiles: later compilations in this process do not.
+  assert jax.config.jax_compilation_cache_dir == before
   plan = json.loads((tmp_path / 'p.json').read_text())
   assert plan['model'] == 'pretrained' and plan['gripper'] in ('parallel_jaw', 'suction')
   assert _on_object(plan, mask) and 0.0 <= plan['probability'] <= 1.0
