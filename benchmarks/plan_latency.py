@@ -66,7 +66,7 @@ import _gqcnn_cem_baseline as baseline  # noqa: E402
 
 from dexjax.models.gqcnn import GQCNNConfig, init_gqcnn, num_parameters  # noqa: E402
 from dexjax.models.normalization import Normalization  # noqa: E402
-from dexjax.models.pretrained import PRETRAINED, load_models  # noqa: E402
+from dexjax.models.shipped import PRETRAINED, load_models  # noqa: E402
 from dexjax.models.saved import GraspQualityModel, predict  # noqa: E402
 from dexjax.policy import fit_gaussian_mixture, make_policy, plan_grasp, prepare_observation  # noqa: E402
 from dexjax.policy.candidates import sample_candidates  # noqa: E402

@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
   from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top (slow imports after parsing)
   from dexjax.data.shards import GRIPPER_NAMES  # pylint: disable=g-import-not-at-top
-  from dexjax.models.pretrained import PRETRAINED, load_models  # pylint: disable=g-import-not-at-top
+  from dexjax.models.shipped import PRETRAINED, load_models  # pylint: disable=g-import-not-at-top
   from dexjax.train.config import TrainConfig  # pylint: disable=g-import-not-at-top
   from dexjax.train.validation import evaluate_model  # pylint: disable=g-import-not-at-top
   checkpoint = args.checkpoint if args.checkpoint == PRETRAINED else Path(args.checkpoint).absolute()

@@ -96,7 +96,7 @@ def _check_args(args: argparse.Namespace) -> None:
 
 def _load_models(spec: str, policy: str) -> dict:
   """GQ-CNNs by gripper: the shipped ones, a training run's (every gripper it holds) or one saved model."""
-  from dexjax.models.pretrained import load_models  # pylint: disable=g-import-not-at-top
+  from dexjax.models.shipped import load_models  # pylint: disable=g-import-not-at-top
   from dexjax.policy.presets import uses_models  # pylint: disable=g-import-not-at-top
   if not uses_models(policy):
     return {}

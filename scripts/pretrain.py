@@ -28,7 +28,7 @@ from pathlib import Path
 
 from dexjax.data.loader import list_shards
 from dexjax.models import load, num_parameters, save_model_file
-from dexjax.models.pretrained import pretrained_path
+from dexjax.models.shipped import pretrained_path
 from dexjax.train import evaluate_model, load_train_config, read_records, train_run
 from dexjax.train.run import CONFIG_FILE, SUMMARY_FILE
 

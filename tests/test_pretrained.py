@@ -17,7 +17,7 @@ import pytest
 from dexjax.generate import GenerateConfig, generate_dataset
 from dexjax.models import (PRETRAINED, load, load_model_file, load_models, pretrained, pretrained_info,
                            save_model, save_model_file)
-from dexjax.models.pretrained import WEIGHTS_DIR, pretrained_path
+from dexjax.models.shipped import WEIGHTS_DIR, pretrained_path
 
 GRIPPERS = ('parallel_jaw', 'suction')
 

@@ -6,7 +6,7 @@ normalisation fitted on the training split (`fit_normalization`)."""
 from dexjax.models.fully_convolutional import output_stride, score_map, score_map_shape
 from dexjax.models.normalization import Normalization, fit_normalization
 from dexjax.models.saved import GraspQualityModel, load, model_info, predict, save_model
-from dexjax.models.pretrained import (PRETRAINED, load_model_file, load_models, pretrained, pretrained_info,
+from dexjax.models.shipped import (PRETRAINED, load_model_file, load_models, pretrained, pretrained_info,
                                       save_model_file)
 from dexjax.models.gqcnn import (GQCNN, PARALLEL_JAW_POSE_DIM, SUCTION_POSE_DIM, GQCNNConfig, ImageStream, init_gqcnn,
                                  num_parameters, success_probability)

@@ -91,7 +91,7 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
   """
   _check_name(name)
   if models is None:
-    from dexjax.models.pretrained import pretrained  # pylint: disable=g-import-not-at-top (flax/orbax import)
+    from dexjax.models.shipped import pretrained  # pylint: disable=g-import-not-at-top (flax/orbax import)
     models = {g: pretrained(g) for g in (GRIPPERS if uses_models(name) else ())}
   models = dict(models)
   for gripper, model in models.items():

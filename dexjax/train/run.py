@@ -115,7 +115,7 @@ def apply_init(config: TrainConfig) -> tuple[TrainConfig, dict[str, Any]]:
   """
   if not config.init:
     return config, {}
-  from dexjax.models.pretrained import load_models  # pylint: disable=g-import-not-at-top (circular at import)
+  from dexjax.models.shipped import load_models  # pylint: disable=g-import-not-at-top (circular at import)
   models = load_models(config.init, config.grippers)
   missing = [g for g in config.grippers if g not in models]
   if missing:

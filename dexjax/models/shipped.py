@@ -1,4 +1,4 @@
-"""GQ-CNNs shipped with the package, single-file models, and where a command's ``--model`` comes from.
+"""GQ-CNNs shipped with the package (`pretrained`), single-file models, and where a command's ``--model`` comes from.
 
 `pretrained` loads the weights shipped in ``dexjax/models/weights/`` (one ``<gripper>.msgpack`` each, a few
 hundred kB; their model card is ``docs/models.md``): no network, no training run. A *model file* is one msgpack
