@@ -26,11 +26,11 @@ import sys
 import time
 from pathlib import Path
 
-from dexjax.data.loader import list_shards
+from dexjax.data import list_shards, shard_path
 from dexjax.models import load, num_parameters, save_model_file
 from dexjax.models.shipped import pretrained_path
 from dexjax.train import evaluate_model, load_train_config, read_records, train_run
-from dexjax.train.run import CONFIG_FILE, SUMMARY_FILE
+from dexjax.train.run import CONFIG_FILE, STATS_FILE, SUMMARY_FILE
 
 METRICS = ('balanced_accuracy', 'accuracy', 'precision', 'recall', 'average_precision', 'loss', 'examples',
            'positives')
@@ -49,16 +49,15 @@ def _evals(items: list[str]) -> dict[str, Path]:
 def _subset(data: Path, fraction: float, root: Path, total: int | None = None) -> Path:
   """A directory of links to the first ``fraction`` of ``data``'s shards, or of its first ``total`` shards (a
   dataset still being generated: those shards must be there)."""
-  shards = list_shards(data)
-  k = max(1, round(fraction * (total or len(shards))))
-  names = {Path(s).name for s in shards}
-  missing = [i for i in range(k) if f'shard-{i:06d}.npz' not in names]
+  finished = list_shards(data)
+  k = max(1, round(fraction * (total or len(finished))))
+  shards = [shard_path(data, i) for i in range(k)]
+  missing = sorted(set(shards) - set(finished))
   if missing:
-    raise SystemExit(f'{data}: shard {missing[0]} of the first {k} is not written yet')
-  shards = sorted(shards, key=lambda s: Path(s).name)
+    raise SystemExit(f'{missing[0]}: not written yet (the first {k} shards are needed)')
   out = root / f'shards-{k}'
   out.mkdir(parents=True, exist_ok=True)
-  for shard in shards[:k]:
+  for shard in shards:
     link = out / Path(shard).name
     if not link.exists():
       link.symlink_to(Path(shard).absolute())
@@ -71,9 +70,9 @@ def score_run(run: Path, evals: dict[str, Path]) -> dict:
   scores = {}
   for gripper in config.grippers:
     model = load(run, gripper)
-    best = [r for r in read_records(run) if r['gripper'] == gripper]
-    entry = {'validation': {k: max(best, key=lambda r: r['val_balanced_accuracy'] or 0).get(f'val_{k}')
-                            for k in METRICS}}
+    records = [r for r in read_records(run) if r['gripper'] == gripper]
+    best = max(records, key=lambda r: r['val_balanced_accuracy'] or 0)
+    entry = {'validation': {k: best.get(f'val_{k}') for k in METRICS}}
     for name, path in evals.items():
       metrics = evaluate_model(model, path, config, 'all')
       entry[name] = {k: metrics.get(k) for k in METRICS}
@@ -95,8 +94,9 @@ def _curve(args) -> dict:
     if key in results and results[key].get('done'):
       continue
     summary = train_run(config, subset, run, resume=(run / CONFIG_FILE).exists(), progress=False)
-    stats = json.loads((run / 'stats.json').read_text())
-    results[key] = {'config': args.config, 'fraction': fraction, 'shards': len(list_shards(subset)), 'train_rows': {g: s['train_rows'] for g, s in stats.items()},
+    stats = json.loads((run / STATS_FILE).read_text())
+    results[key] = {'config': args.config, 'fraction': fraction, 'shards': len(list_shards(subset)),
+                    'train_rows': {g: s['train_rows'] for g, s in stats.items()},
                     'train_seconds': summary['seconds'], 'scores': score_run(run, evals), 'done': True}
     out.mkdir(parents=True, exist_ok=True)
     result_path.write_text(json.dumps(results, indent=1) + '\n')
@@ -107,7 +107,7 @@ def _ship(args) -> dict:
   run, evals = Path(args.run), _evals(args.eval)
   config = load_train_config(run / CONFIG_FILE)
   summary = json.loads((run / SUMMARY_FILE).read_text())
-  stats = json.loads((run / 'stats.json').read_text())
+  stats = json.loads((run / STATS_FILE).read_text())
   data_config = json.loads((Path(args.data) / 'config.json').read_text())
   scores = score_run(run, evals)
   written = {}
@@ -115,7 +115,7 @@ def _ship(args) -> dict:
     model = load(run, gripper)
     info = {
         'data': {'command': args.data_command, 'objects': data_config['config']['objects']['sources'],
-                 'shards': len(list_shards(args.data)), 'train_rows': stats[gripper]['train_rows'],
+                 'shards': len(list_shards(summary['data'])), 'train_rows': stats[gripper]['train_rows'],
                  'positive_rate': stats[gripper]['positive_rate'],
                  'camera': data_config['config']['camera'], 'gripper': data_config['config']['grippers'][gripper]},
         'network': {'crop_size': model.config.crop_size, 'crop_window': model.crop_window,

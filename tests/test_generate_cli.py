@@ -1,8 +1,8 @@
 """``python -m dexjax.generate`` end to end on two worker processes, in a subprocess, and its resume.
 
-Marked ``heavy`` (deselected by default: ``python -m pytest -m heavy`` runs it): each worker compiles the labeller
-(~3 minutes here in all). The CI suite covers the same CLI in-process (``tests/test_generate.py``) and the process
-and Ray backends with small tasks (``tests/test_parallel.py``).
+Marked ``heavy`` (a label: the suite and CI run it): each worker compiles the labeller (~3 minutes here in all).
+``tests/test_generate.py`` covers the same CLI in-process, ``tests/test_parallel.py`` the process and Ray backends
+with small tasks.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from dexjax.generate.__main__ import main
 sys.path.insert(0, os.path.dirname(__file__))
 from test_generate import NUM_IMAGES, SMALL  # pylint: disable=g-import-not-at-top,wrong-import-position
 
+SMALL_OBJECTS = ('cube', 'cylinder', 'l_shape', 'L1/0', 'L1/1', 'L1/2')
 TIMEOUT = 600  # seconds; the run takes ~1-2 minutes here
 
 
@@ -51,6 +52,7 @@ def test_parallel_run_writes_shards_summary_and_preview_then_resumes_without_rew
              '--backend', 'process', '--cache-dir', str(cache), '--json')
   first = _cli(*command, cache=cache)
   assert first.returncode == 0, first.stderr[-3000:]
+  assert 'parts failed' not in first.stderr
   summary = json.loads(first.stdout)
   assert summary['shards'] == {'total': 2, 'assigned': 2, 'skipped': 0, 'written': 2, 'failed': {}}
   assert summary['images'] == NUM_IMAGES and summary['heaps'] == NUM_IMAGES
@@ -67,6 +69,8 @@ def test_parallel_run_writes_shards_summary_and_preview_then_resumes_without_rew
   assert (out / 'manifest.json').is_file() and (out / 'config.json').is_file()
   assert summary['preview'] == str(out / 'preview.png') and (out / 'preview.png').stat().st_size > 10_000
   assert not list(out.glob('*.tmp-*'))
+  # The object caches were built on the two workers (interleaved parts), one supervisor set per object.
+  assert len(list((cache / 'supervisor').glob('supervisor-*.npz'))) == len(SMALL_OBJECTS)
   digests = _digests(out)
 
   # The same command again (in-process: it generates nothing, so the interpreter start would be most of its

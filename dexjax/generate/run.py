@@ -19,6 +19,7 @@ import math
 import os
 import re
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,7 @@ from dexjax.generate.parallel import run_tasks
 from dexjax.generate.pipeline import (close_process_generators, generate_shard, process_generator,
                                       supervisor_sets, usable_objects)
 from dexjax.generate.report import RowStats
+from dexjax.objects.sets import load_object_set, prepare_object_set
 
 CONFIG_NAME = 'config.json'
 PREVIEW_NAME = 'preview.png'
@@ -99,16 +101,43 @@ def _write_config(out_dir: Path, config: GenerateConfig) -> None:
   atomic_write_text(out_dir / CONFIG_NAME, json.dumps(data, indent=1, sort_keys=True, default=str))
 
 
-def warm_caches(config: GenerateConfig, cache_dir: str | None = None, progress: bool = False) -> int:
+def warm_caches(config: GenerateConfig, cache_dir: str | None = None, progress: bool = False, *,
+                backend: str = 'serial', workers: int = 1, ray_address: str | None = None) -> int:
   """Builds the object models, collision hulls and supervisor grasp sets into the cache once, before worker
   processes start (so they load instead of each computing them). Returns the number of usable objects.
+
+  Every cache entry belongs to one object, so with ``workers > 1`` the objects are split into interleaved parts
+  built on the ``backend``'s workers (`dexjax.generate.run_tasks`); this process then loads them all (and builds
+  what a failed part left, with a warning).
 
   Raises:
     NoObjectsError: no object of the run's sources could be used.
   """
+  if backend != 'serial' and workers > 1:
+    parts = _WARM_PARTS_PER_WORKER * workers
+    task = functools.partial(_warm_part, config=config, cache_dir=cache_dir, parts=parts)
+    result = run_tasks(task, range(parts), backend=backend, workers=workers, progress=progress,
+                       ray_address=ray_address, description='object caches')
+    if result.failures:
+      index, reason = next(iter(result.failures.items()))
+      warnings.warn(f'object caches: {len(result.failures)} of {parts} parts failed on the workers (part {index}: '
+                    f'{reason}); this process builds what they left', stacklevel=2)
   prepared, _ = usable_objects(config, cache_dir, progress)
   supervisor_sets(config, [p.model for p in prepared], cache_dir)
   return len(prepared)
+
+
+_WARM_PARTS_PER_WORKER = 4  # interleaved parts per worker: objects differ in cost, small parts balance the load
+
+
+def _warm_part(index: int, *, config: GenerateConfig, cache_dir: str | None, parts: int) -> dict[str, Any]:
+  """Builds the caches of objects ``index``, ``index + parts``, ... of the run's sources (a `warm_caches` task)."""
+  report = load_object_set(config.objects.sources, scale=config.objects.scale)
+  prepared, _ = prepare_object_set(report.loaded[index::parts], cache_dir=cache_dir,
+                                   grid_size=config.objects.grid_size)
+  if prepared:
+    supervisor_sets(config, [p.model for p in prepared], cache_dir)
+  return {'objects': len(prepared)}
 
 
 def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], num_images: int, *,
@@ -155,7 +184,8 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
     config = dataclasses.replace(config, settle=config.settle.replace(nthread=1))  # one core per worker
   # The objects are checked (NoObjectsError) before a new run writes anything, so a bad source leaves no manifest
   # of its config behind; this makes the caches (parallel) or this process's generator (serial, reused by tasks).
-  prepare = (lambda: warm_caches(config, cache_dir, progress)) if parallel else (
+  prepare = (lambda: warm_caches(config, cache_dir, progress, backend=backend, workers=workers,
+                                 ray_address=ray_address)) if parallel else (
       lambda: process_generator(config, cache_dir))
   new_run = not (out / MANIFEST_NAME).exists()
   if new_run:

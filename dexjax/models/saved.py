@@ -105,6 +105,13 @@ def config_from_json(data: dict[str, Any]) -> GQCNNConfig:
   return GQCNNConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items() if k in fields})
 
 
+def params_template(config: GQCNNConfig) -> dict[str, Any]:
+  """Zeros shaped like a saved model's ``{'params', 'normalization'}`` for ``config``: what a reader restores
+  into (orbax here, a model file in `dexjax.models.shipped`)."""
+  template = {'params': init_gqcnn(jax.random.key(0), config), 'normalization': Normalization.identity(config.pose_dim)}
+  return jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), template)
+
+
 def _model_directory(path: Path, gripper: str | None) -> Path:
   """The orbax directory of a saved model, from a model directory, a gripper directory or a run directory."""
   candidates = [path, path / BEST_DIR] + ([path / gripper / BEST_DIR] if gripper else [])
@@ -144,9 +151,7 @@ def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityMod
     if gripper is not None and meta['gripper'] != gripper:
       raise ValueError(f"{directory}: field 'gripper': expected {gripper!r}, got {meta['gripper']!r}")
     config = config_from_json(meta['config'])
-    template = {'params': init_gqcnn(jax.random.key(0), config),
-                'normalization': Normalization.identity(config.pose_dim)}
-    template = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), template)
+    template = params_template(config)
     restored = manager.restore(step, args=ocp.args.Composite(params=ocp.args.StandardRestore(template)))['params']
   return GraspQualityModel(params=restored['params'], normalization=restored['normalization'], config=config,
                            gripper=meta['gripper'], crop_window=int(meta['crop_window']))
@@ -159,4 +164,4 @@ def model_info(path: str | os.PathLike, gripper: str | None = None) -> dict[str,
     return _read_meta(manager, directory)[1]['info']
 
 
-__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'config_from_json', 'load', 'model_info', 'predict', 'save_model']
+__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'config_from_json', 'load', 'params_template', 'model_info', 'predict', 'save_model']

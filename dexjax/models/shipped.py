@@ -24,22 +24,13 @@ import jax
 import numpy as np
 from flax import serialization
 
-from dexjax.models.gqcnn import init_gqcnn
-from dexjax.models.normalization import Normalization
-from dexjax.models.saved import FORMAT, GraspQualityModel, config_from_json, load
+from dexjax.models.saved import FORMAT, GraspQualityModel, config_from_json, load, params_template
 
 PRETRAINED = 'pretrained'
 """The name that selects the shipped models wherever a model path is expected."""
 PRETRAINED_GRIPPERS = ('parallel_jaw', 'suction')
 MODEL_FILE_SUFFIX = '.msgpack'
 WEIGHTS_DIR = Path(__file__).parent / 'weights'
-
-
-def _template(meta: dict[str, Any]) -> dict[str, Any]:
-  config = config_from_json(meta['config'])
-  template = {'params': init_gqcnn(jax.random.key(0), config),
-              'normalization': Normalization.identity(config.pose_dim)}
-  return jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), template)
 
 
 def save_model_file(path: str | os.PathLike, model: GraspQualityModel, info: dict[str, Any] | None = None) -> Path:
@@ -87,7 +78,7 @@ def load_model_file(path: str | os.PathLike, gripper: str | None = None) -> Gras
   meta, state = _read_model_file(path)
   if gripper is not None and meta['gripper'] != gripper:
     raise ValueError(f"{path}: field 'gripper': expected {gripper!r}, got {meta['gripper']!r}")
-  template = _template(meta)
+  template = params_template(config_from_json(meta['config']))
   try:
     params = serialization.from_state_dict(template['params'], state['params'])
     norm = serialization.from_state_dict(template['normalization'], state['normalization'])
