@@ -230,6 +230,10 @@ def test_configs_and_their_errors(tmp_path):
   assert recipe.optimizer.learning_rate == 0.01 and recipe.model.conv_kernels == (9, 5, 5, 5)
   assert load_train_config('configs/dexnet4_suction.yaml').grippers == ('suction',)
   assert load_train_config('configs/quickstart.yaml') == TrainConfig() == load_train_config(None)
+  shipped = load_train_config('configs/pretrained.yaml')  # the recipe of the shipped models (docs/models.md)
+  assert (shipped.model.crop_size, shipped.crop_window, shipped.loop.class_balance) == (32, 96, 'weight')
+  finetune = load_train_config('configs/finetune.yaml')
+  assert finetune.init == 'pretrained' and finetune.optimizer.learning_rate == 0.002 and finetune.loop.epochs == 4
   with pytest.raises(ConfigError, match="x.yaml: loop.class_balance: expected one of"):
     train_config_from_dict({'loop': {'class_balance': 'often'}}, 'x.yaml')
   with pytest.raises(ConfigError, match='x.yaml: model.conv_kernel: unknown field'):
