@@ -1,0 +1,98 @@
+"""Benchmark picking metrics (against SciPy and exact kinematics) and the attempt log (torn lines, damage, resume)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from dexjax.bench import (AttemptLogError, MotionModel, append_attempt, move_seconds, object_difficulty,
+                          read_attempts, sem_interval, summarize, wilson_interval)
+
+
+@pytest.mark.parametrize('k,n', [(0, 1), (0, 10), (3, 10), (10, 10), (57, 61), (1, 75), (125, 131)])
+def test_wilson_interval_matches_scipy(k, n):
+  ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method='wilson')
+  np.testing.assert_allclose(wilson_interval(k, n), (ci.low, ci.high), atol=1e-12)
+
+
+def test_sem_interval_is_the_seeds_normal_interval():
+  p, n = 125 / 131, 131
+  half = stats.norm.ppf(0.975) * math.sqrt(p * (1 - p) / n)
+  np.testing.assert_allclose(sem_interval(125, 131), (p - half, min(1.0, p + half)), atol=1e-12)
+  assert sem_interval(10, 10) == (1.0, 1.0)  # the seed's interval collapses at 0 and 1; Wilson's does not
+  assert wilson_interval(10, 10)[0] < 0.75
+  assert all(math.isnan(x) for x in sem_interval(0, 0) + wilson_interval(0, 0))
+
+
+@pytest.mark.parametrize('distance', [0.01, 0.2, 0.45, 1.3])
+def test_move_seconds_integrates_its_speed_profile(distance):
+  """The move's time is the time the trapezoid (or triangle) of speed needs to cover the distance, at rest at both
+  ends: integrate v(t) numerically and compare."""
+  speed, acceleration = 1.5, 5.0
+  t = move_seconds(distance, speed, acceleration)
+  v = lambda s: min(speed, acceleration * s, acceleration * (t - s))
+  covered, _ = integrate.quad(v, 0.0, t, points=[speed / acceleration, t - speed / acceleration], limit=200)
+  assert covered == pytest.approx(distance, rel=1e-6)
+  assert max(v(s) for s in np.linspace(0, t, 1001)) <= speed + 1e-9
+  assert move_seconds(0.0, speed, acceleration) == 0.0
+
+
+def test_motion_model_slows_with_a_slower_robot_and_longer_paths():
+  base = MotionModel()
+  seconds = base.attempt_seconds()
+  assert 1.5 < seconds < 6.0  # a pick-and-place cycle of the seed's YuMi
+  assert MotionModel(tool_speed=0.5).attempt_seconds() > seconds
+  assert MotionModel(transport_distance=0.8).attempt_seconds() > seconds
+  assert MotionModel(actuation_seconds=0.5).attempt_seconds() == pytest.approx(seconds + 0.4)
+
+
+def _record(policy, level, obj, success, analytic=None, physics=None, plan=1.0, motion=2.0):
+  return {'policy': policy, 'level': level, 'object': obj, 'success': success, 'analytic': analytic,
+          'physics': physics, 'plan_seconds': plan, 'motion_seconds': motion}
+
+
+def test_summarize_counts_reliability_mpph_agreement_and_per_object():
+  records = ([_record('a', 1, 'cube', True, True, True)] * 3 + [_record('a', 1, 'cube', False, True, False)]
+             + [_record('a', 2, 'mug', False, False, False)] * 2 + [_record('a', 2, None, False)]
+             + [_record('b', 1, 'cube', True, plan=0.5)] * 4)
+  out = summarize(records)
+  a, b = out['a'], out['b']
+  assert (a['attempts'], a['successes']) == (7, 3) and a['reliability'] == pytest.approx(3 / 7)
+  assert a['mpph'] == pytest.approx(3600 * 3 / (7 * 3.0))  # successes per hour of plan + motion time
+  assert a['mpph'] == pytest.approx(a['reliability'] * 3600 / a['seconds_per_attempt'])
+  assert a['judge_agreement'] == pytest.approx(5 / 6) and a['judged_by_both'] == 6
+  assert a['per_object']['cube']['attempts'] == 4 and a['per_object']['cube']['reliability'] == 0.75
+  assert set(a['per_object']) == {'cube', 'mug'}  # an attempt that aimed at no object counts for the policy only
+  assert (a['per_level']['2']['attempts'], a['per_level']['2']['successes']) == (3, 0)
+  assert b['reliability'] == 1.0 and b['mpph'] == pytest.approx(3600 / 2.5) and math.isnan(b['judge_agreement'])
+  difficulty = object_difficulty(out)
+  assert list(difficulty) == ['mug', 'cube']  # hardest first
+  assert difficulty['cube']['reliability'] == pytest.approx((0.75 + 1.0) / 2)
+  assert difficulty['cube']['sem'] == pytest.approx(np.std([0.75, 1.0], ddof=1) / math.sqrt(2))
+  assert difficulty['mug'] == {'reliability': 0.0, 'sem': 0.0, 'policies': 1}
+
+
+def test_attempt_log_appends_whole_lines_drops_a_torn_last_one_and_rejects_damage(tmp_path):
+  path = tmp_path / 'attempts.jsonl'
+  assert read_attempts(path) == []
+  append_attempt(path, {'trial': 0, 'attempt': 0, 'q': np.float32(0.5), 'pose': np.arange(3.0), 'x': float('nan')})
+  append_attempt(path, {'trial': 0, 'attempt': 1})
+  assert read_attempts(path) == [{'attempt': 0, 'pose': [0.0, 1.0, 2.0], 'q': 0.5, 'trial': 0, 'x': None},
+                                 {'attempt': 1, 'trial': 0}]
+  whole = path.read_bytes()
+  with open(path, 'ab') as f:  # a kill in the middle of the third record
+    f.write(b'{"trial": 0, "att')
+  assert len(read_attempts(path)) == 2 and path.read_bytes() != whole
+  assert len(read_attempts(path, repair=True)) == 2 and path.read_bytes() == whole
+  append_attempt(path, {'trial': 0, 'attempt': 2})
+  assert [r['attempt'] for r in read_attempts(path)] == [0, 1, 2]
+  path.write_bytes(whole.replace(b'"attempt": 1', b'"attempt": 1,,'))
+  with pytest.raises(AttemptLogError, match=r'attempts.jsonl: line 2: expected one JSON object'):
+    read_attempts(path)
+  path.write_text(json.dumps([1, 2]) + '\n')
+  with pytest.raises(AttemptLogError, match='line 1'):
+    read_attempts(path)
