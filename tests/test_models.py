@@ -3,6 +3,8 @@ equal to the patch model at every sampled crop."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -86,3 +88,35 @@ def test_normalization_streams_the_statistics_of_the_concatenation():
   with pytest.raises(ValueError, match='at least one batch'):
     fit_normalization([])
   assert float(Normalization.identity(2).apply(jnp.ones((1, 4, 4, 1)), jnp.ones((1, 2)))[0].sum()) == 16.0
+
+
+def test_im_depth_sub_takes_crops_relative_to_the_grasp_depth():
+  """input_depth_mode 'im_depth_sub': statistics of crop - grasp depth, and a model that sees a heap moved
+  farther from the camera together with its grasp depth only through its pose stream."""
+  from dexjax.models import GQCNN, GQCNNConfig, GraspQualityModel, fit_normalization, init_gqcnn
+  rng = np.random.default_rng(4)
+  crops = [rng.normal(0.75, 0.07, size=(n, 16, 16, 1)) for n in (6, 9)]
+  poses = [np.c_[rng.normal(0.7, 0.05, len(c)), rng.normal(0.0, 0.6, len(c))] for c in crops]
+  norm = fit_normalization(zip(crops, poses), subtract_depth=True)
+  relative = np.concatenate([(c - p[:, :1, None, None]).ravel() for c, p in zip(crops, poses)])
+  np.testing.assert_allclose([norm.image_mean, norm.image_std], [relative.mean(), relative.std()], rtol=1e-5)
+  config = GQCNNConfig(crop_size=16, conv_filters=(4,), conv_kernels=(3,), pool_after=(0,), fc_size=8,
+                       pose_size=4, merge_size=8, pose_dim=2, input_depth_mode='im_depth_sub').validate()
+  model = GraspQualityModel(params=init_gqcnn(jax.random.key(0), config), normalization=norm, config=config,
+                            gripper='suction', crop_window=16)
+  c, p = jnp.asarray(crops[0], jnp.float32), jnp.asarray(poses[0], jnp.float32)
+  expected = GQCNN(config).apply({'params': model.params}, ((crops[0] - poses[0][:, :1, None, None]) - relative.mean())
+                                 / relative.std(), (poses[0] - norm.pose_mean) / norm.pose_std, train=False)
+  np.testing.assert_allclose(np.asarray(model.logits(c, p)), np.asarray(expected), rtol=1e-4, atol=1e-4)
+  # The image stream (fc3) sees the same input when the crop and the grasp move 10 cm away together; in
+  # 'pose_stream' mode it does not.
+  from dexjax.models.feature_analysis import layer_activations
+  absolute = GraspQualityModel(params=model.params, normalization=norm, config=dataclasses.replace(
+      config, input_depth_mode='pose_stream'), gripper='suction', crop_window=16)
+  moved = (c + 0.1, p.at[:, 0].add(0.1))
+  for m, invariant in ((model, True), (absolute, False)):
+    before, after = layer_activations(m, c, p), layer_activations(m, *moved)
+    assert np.allclose(before['fc3'], after['fc3'], atol=1e-4) == invariant
+    assert not np.allclose(before['pc1'], after['pc1'], atol=1e-4)
+  with pytest.raises(ValueError, match="input_depth_mode: expected one of"):
+    GQCNNConfig(input_depth_mode='im_only').validate()

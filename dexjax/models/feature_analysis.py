@@ -34,7 +34,8 @@ def layer_names(model: GraspQualityModel) -> tuple[str, ...]:
 
 @jax.jit
 def _intermediates(model: GraspQualityModel, crops: jax.Array, poses: jax.Array) -> dict[str, jax.Array]:
-  crops, poses = model.normalization.apply(jnp.asarray(crops, jnp.float32), jnp.asarray(poses, jnp.float32))
+  crops, poses = model.normalization.apply(jnp.asarray(crops, jnp.float32), jnp.asarray(poses, jnp.float32),
+                                           model.config.subtracts_grasp_depth)
   logits, state = GQCNN(model.config).apply({'params': model.params}, crops, poses, train=False,
                                             capture_intermediates=True)
   inter = state['intermediates']

@@ -23,6 +23,7 @@ from flax import linen as nn
 
 PARALLEL_JAW_POSE_DIM = 1  # gripper depth
 SUCTION_POSE_DIM = 2       # gripper depth, approach angle
+INPUT_DEPTH_MODES = ('pose_stream', 'im_depth_sub')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,6 +40,9 @@ class GQCNNConfig:
     merge_size: merge layer (fc4) width.
     pose_dim: pose input size: 1 (parallel jaw: depth) or 2 (suction: depth, approach angle).
     dropout: dropout rate after fc3 and fc4 in training (Dex-Net 4.0: 0).
+    input_depth_mode: ``'pose_stream'`` (Dex-Net 4.0: the crop in metres from the camera) or ``'im_depth_sub'``
+      (the grasp depth is subtracted from every crop pixel before normalisation, as gqcnn's mode of that name;
+      the pose stream is kept). See `dexjax.models.Normalization.apply`.
   """
 
   crop_size: int = 96
@@ -50,6 +54,12 @@ class GQCNNConfig:
   merge_size: int = 128
   pose_dim: int = PARALLEL_JAW_POSE_DIM
   dropout: float = 0.0
+  input_depth_mode: str = 'pose_stream'
+
+  @property
+  def subtracts_grasp_depth(self) -> bool:
+    """True when crops are taken relative to the grasp depth (``input_depth_mode == 'im_depth_sub'``)."""
+    return self.input_depth_mode == 'im_depth_sub'
 
   @classmethod
   def small(cls, pose_dim: int = PARALLEL_JAW_POSE_DIM) -> GQCNNConfig:
@@ -79,6 +89,9 @@ class GQCNNConfig:
                        f'got {self.pool_after}')
     if self.pose_dim < 1:
       raise ValueError(f'GQCNNConfig.pose_dim: expected 1 (parallel jaw) or 2 (suction), got {self.pose_dim}')
+    if self.input_depth_mode not in INPUT_DEPTH_MODES:
+      raise ValueError(f'GQCNNConfig.input_depth_mode: expected one of {INPUT_DEPTH_MODES}, got '
+                       f'{self.input_depth_mode!r}')
     if not 0.0 <= self.dropout < 1.0:
       raise ValueError(f'GQCNNConfig.dropout: expected a rate in [0, 1), got {self.dropout}')
     self.feature_size()

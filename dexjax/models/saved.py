@@ -51,7 +51,8 @@ class GraspQualityModel:
 
   def logits(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
     """Logits (B, 2) of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim)."""
-    crops, poses = self.normalization.apply(jnp.asarray(crops, jnp.float32), jnp.asarray(poses, jnp.float32))
+    crops, poses = self.normalization.apply(jnp.asarray(crops, jnp.float32), jnp.asarray(poses, jnp.float32),
+                                            self.config.subtracts_grasp_depth)
     return GQCNN(self.config).apply({'params': self.params}, crops, poses, train=False)
 
   def __call__(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
@@ -71,7 +72,12 @@ class GraspQualityModel:
     if self.crop_window != self.config.crop_size:
       raise ValueError(f'score_image: crop_window {self.crop_window} != crop_size {self.config.crop_size}: '
                        f'resample the depth image by {self.config.crop_size}/{self.crop_window} first')
-    image, pose = self.normalization.apply(jnp.asarray(depth, jnp.float32)[..., None], jnp.asarray(pose, jnp.float32))
+    pose = jnp.asarray(pose, jnp.float32)
+    if self.config.subtracts_grasp_depth and pose.ndim > 1:
+      raise ValueError("score_image: a model of input_depth_mode 'im_depth_sub' takes crops relative to one grasp "
+                       f'depth: expected one pose (pose_dim,), got shape {pose.shape}')
+    image, pose = self.normalization.apply(jnp.asarray(depth, jnp.float32)[..., None], pose,
+                                           self.config.subtracts_grasp_depth)
     return score_map(self.params, self.config, image, pose)
 
 

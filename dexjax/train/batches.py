@@ -221,7 +221,8 @@ def dataset_stats(data_dir: str | os.PathLike, config: TrainConfig) -> dict[str,
             if counts[g][0] > limit}
   if chosen:
     samples.update(_chosen_rows(data_dir, config, chosen, rng))
-  return {g: GripperStats(counts[g][0], counts[g][1], fit_normalization(samples[g])) for g in config.grippers}
+  return {g: GripperStats(counts[g][0], counts[g][1], fit_normalization(samples[g], config.model.subtracts_grasp_depth))
+          for g in config.grippers}
 
 
 __all__ = ['GripperStats', 'dataset_stats', 'eval_batches', 'train_batches']

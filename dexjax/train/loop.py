@@ -34,18 +34,19 @@ from dexjax.train.step import TrainState, create_state, learning_rate_schedule, 
 
 
 def _sgd_step(state: TrainState, batch: dict[str, jax.Array], norm, key: jax.Array, augment: bool,
-              suction: bool) -> tuple[TrainState, dict]:
-  """Augmentation (per-example symmetries), normalisation and one `train_step`."""
+              suction: bool, subtract_depth: bool = False) -> tuple[TrainState, dict]:
+  """Augmentation (per-example symmetries), normalisation (crops relative to the grasp depth with
+  ``subtract_depth``) and one `train_step`."""
   crops, poses = batch['crops'], batch['poses']
   if augment:
     keys = jax.random.split(jax.random.fold_in(key, 0), crops.shape[0])
     crops, poses = jax.vmap(functools.partial(symmetrize, suction=suction))(keys, crops, poses)
-  crops, poses = norm.apply(crops, poses)
+  crops, poses = norm.apply(crops, poses, subtract_depth)
   step_batch = {'crops': crops, 'poses': poses, 'labels': batch['labels'], 'weights': batch['weights']}
   return train_step(state, step_batch, jax.random.fold_in(key, 1))
 
 
-sgd_step = jax.jit(_sgd_step, static_argnames=('augment', 'suction'), donate_argnums=0)
+sgd_step = jax.jit(_sgd_step, static_argnames=('augment', 'suction', 'subtract_depth'), donate_argnums=0)
 
 
 def _host(tree: Any) -> Any:
@@ -148,7 +149,7 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
           raise Interrupted(f'{gripper}: stopped at step {int(state.step)}')
         step_key = jax.random.fold_in(key, int(state.step) + 1)
         state, metrics = sgd_step(state, shard_batch(batch, mesh), norm, step_key, augment=config.loop.symmetrize,
-                                  suction=suction)
+                                  suction=suction, subtract_depth=config.model.subtracts_grasp_depth)
         progress_data['batch'] += 1
         progress_data['loss_sum'] += float(metrics['loss'])
         progress_data['accuracy_sum'] += float(metrics['accuracy'])
