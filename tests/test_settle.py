@@ -204,3 +204,31 @@ def test_with_convex_decomposition_hulls():
   assert not r.diverged.any() and not r.left_bin.any()
   for b in range(4):
     assert _min_contact_distance(objects, sim.select_heap(state, b), r.poses[b]) > -PENETRATION_TOL
+
+
+def test_resettling_from_rest_keeps_the_heap_and_a_removed_support_lets_objects_fall(objects, states, settled):
+  """``start_poses``: a settled heap started again from its poses stays put; with its lowest supporting object
+  removed, what rested on it falls to a new rest."""
+  b = int(np.flatnonzero(settled.settled & (states.mask.sum(1) >= 5))[0])
+  state = sim.select_heap(states, b)
+  again = sim.settle(objects, state, backend="rollout", start_poses=settled.poses[b])
+  mask = settled.mask[b]
+  assert again.settled[0] and again.steps[0] < 50
+  np.testing.assert_allclose(again.centers[0][mask], settled.centers[b][mask], atol=2e-3)
+  np.testing.assert_allclose(again.initial_poses[0][mask], settled.poses[b][mask], atol=1e-9)
+  # A cube stacked on a cube: with the bottom one removed, the top one falls to where the bottom one rested.
+  stack = sim.select_heap(states, 0).replace(
+      object_ids=np.array([0, 6] + [0] * 8, np.int32), mask=np.array([True, True] + [False] * 8),
+      positions=np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.25]] + [[0.0, 0.0, 0.0]] * 8, np.float32),
+      quaternions=np.tile(np.array([1.0, 0.0, 0.0, 0.0], np.float32), (10, 1)))
+  stacked = sim.settle(objects, stack, backend="rollout")
+  bottom_z, top_z = stacked.centers[0, 0, 2], stacked.centers[0, 1, 2]
+  assert stacked.settled[0] and top_z > 1.8 * bottom_z
+  fallen = sim.settle(objects, stack.replace(mask=np.array([False, True] + [False] * 8)), backend="rollout",
+                      start_poses=stacked.poses[0])
+  assert fallen.settled[0] and not fallen.mask[0, 0]
+  np.testing.assert_allclose(fallen.centers[0, 1], stacked.centers[0, 0], atol=5e-3)
+  with pytest.raises(ValueError, match=r"start_poses: expected shape \(1, 10, 7\)"):
+    sim.settle(objects, state, backend="rollout", start_poses=settled.poses[b][:3])
+  with pytest.raises(ValueError, match="'rollout' backend only"):
+    sim.settle(objects, state, backend="mjx", start_poses=settled.poses[b])

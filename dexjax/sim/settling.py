@@ -187,10 +187,14 @@ def finish(objects: Sequence[HeapObject], states: HeapState, qpos: list[np.ndarr
 class _RolloutHeap:
   """One heap on the C engine: its own model, `MjData`, state vector and warm start."""
 
-  def __init__(self, objects: Sequence[HeapObject], state: HeapState, settings: SettleSettings):
+  def __init__(self, objects: Sequence[HeapObject], state: HeapState, settings: SettleSettings,
+               start: np.ndarray | None = None):
     self.model = build_heap_model(objects, state, settings)
     self.data = mujoco.MjData(self.model)
-    self.data.qpos[:] = initial_qpos(objects, state, settings)
+    if start is None:
+      self.data.qpos[:] = initial_qpos(objects, state, settings)
+    else:
+      self.data.qpos[:] = np.asarray(start, np.float64)[heap_slots(state)].reshape(-1)
     self.coms = _coms(objects, state)
     self.spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     self.state = np.empty(mujoco.mj_stateSize(self.model, self.spec))
@@ -224,14 +228,16 @@ class _RolloutHeap:
     return self.state[1:1 + m.nq], self.state[1 + m.nq:1 + m.nq + m.nv]
 
 
-def _settle_rollout(objects: Sequence[HeapObject], states: HeapState, settings: SettleSettings) -> SettleResult:
+def _settle_rollout(objects: Sequence[HeapObject], states: HeapState, settings: SettleSettings,
+                    start_poses: np.ndarray | None = None) -> SettleResult:
   batch = states.mask.shape[0]
   nthread = settings.nthread or os.cpu_count() or 1
   qpos, qvel, steps, diverged = [], [], [], []
   with ThreadPoolExecutor(max_workers=nthread) as pool:
     for start in range(0, batch, settings.rollout_wave):
       wave = range(start, min(start + settings.rollout_wave, batch))
-      heaps = list(pool.map(lambda b: _RolloutHeap(objects, select_heap(states, b), settings), wave))
+      heaps = list(pool.map(lambda b: _RolloutHeap(objects, select_heap(states, b), settings,
+                                                   None if start_poses is None else start_poses[b]), wave))
       elapsed = 0
       while elapsed < settings.max_steps:
         active = [h for h in heaps if not h.done]
@@ -249,14 +255,34 @@ def _settle_rollout(objects: Sequence[HeapObject], states: HeapState, settings: 
   return finish(objects, states, qpos, qvel, np.array(steps), np.array(diverged), settings, 'rollout')
 
 
+def _start_poses(states: HeapState, start_poses: Any) -> np.ndarray:
+  """``start_poses`` as (B, P, 7) float64 with unit quaternions; ValueError if its shape or values are wrong."""
+  poses = np.asarray(start_poses, np.float64)
+  if poses.ndim == 2:
+    poses = poses[None]
+  if poses.shape != (*states.mask.shape, 7):
+    raise ValueError(f'settle: start_poses: expected shape {(*states.mask.shape, 7)} (heaps, slots, xyz + wxyz), '
+                     f'got {np.shape(start_poses)}')
+  used = poses[states.mask.astype(bool)]
+  if not np.all(np.isfinite(used)) or np.any(np.linalg.norm(used[:, 3:], axis=1) < 1e-9):
+    raise ValueError('settle: start_poses: expected finite poses with non-zero quaternions in every used slot')
+  poses = poses.copy()
+  poses[..., 3:] /= np.maximum(np.linalg.norm(poses[..., 3:], axis=-1, keepdims=True), 1e-12)
+  return poses
+
+
 def default_backend() -> str:
   """The backend ``'auto'`` resolves to: ``'rollout'`` on CPU, ``'mjx'`` on an accelerator."""
   return 'rollout' if jax.default_backend() == 'cpu' else 'mjx'
 
 
 def settle(objects: Sequence[HeapObject], states: HeapState, *, backend: str = 'auto',
-           settings: SettleSettings = SettleSettings()) -> SettleResult:
+           settings: SettleSettings = SettleSettings(), start_poses: Any = None) -> SettleResult:
   """Drops and settles heaps; returns final poses and per-object flags.
+
+  With ``start_poses`` the heaps start at rest from those poses instead of their drop poses: a heap that was
+  disturbed (an object removed, a failed grasp) settles again (``initial_poses`` of the result are then the
+  start poses).
 
   Args:
     objects: the N available objects (``states.object_ids`` index into this sequence).
@@ -264,12 +290,15 @@ def settle(objects: Sequence[HeapObject], states: HeapState, *, backend: str = '
       heap (then B = 1).
     backend: ``'auto'``, ``'rollout'`` (MuJoCo C engine, threads) or ``'mjx'`` (MuJoCo MJX).
     settings: physics, stopping criteria and backend options.
+    start_poses: optional (B, P, 7) (or (P, 7) for a single heap) object-frame poses (xyz, wxyz) to start from,
+      padded like ``states``; the ``'rollout'`` backend only.
 
   Returns:
     A `SettleResult` (NumPy arrays, padded like ``states``).
 
   Raises:
-    ValueError: unknown backend, bad settings, or object ids outside range(len(objects)).
+    ValueError: unknown backend, bad settings, object ids outside range(len(objects)), or ``start_poses`` of
+      the wrong shape, not finite, or with the ``'mjx'`` backend.
     SettleTimeout: the ``mjx`` child process exceeded ``settings.mjx_timeout``.
   """
   if backend not in BACKENDS:
@@ -279,8 +308,14 @@ def settle(objects: Sequence[HeapObject], states: HeapState, *, backend: str = '
   _check_ids(objects, states)
   if backend == 'auto':
     backend = default_backend()
+  if start_poses is not None:
+    start_poses = _start_poses(states, start_poses)
+    if backend != 'rollout':
+      raise ValueError(f"settle: start_poses: supported by the 'rollout' backend only, got backend {backend!r}")
   if backend == 'rollout':
-    return _settle_rollout(objects, states, settings)
+    result = _settle_rollout(objects, states, settings, start_poses)
+    return result if start_poses is None else result.replace(initial_poses=np.where(
+        states.mask[..., None], start_poses, result.initial_poses))
   from dexjax.sim import mjx_backend  # imports mujoco.mjx only when needed
   raw = mjx_backend.run(objects, states, settings)
   return finish(objects, states, raw['qpos'], raw['qvel'], raw['steps'], raw['diverged'], settings, 'mjx')
