@@ -39,7 +39,7 @@ from dexjax.generate.config import GenerateConfig, fingerprint
 from dexjax.generate.labels import ImageRows, LabelParams, label_image
 from dexjax.objects.folder import Rejection
 from dexjax.objects.sets import load_object_set, prepare_object_set
-from dexjax.quality.heap_reward import HeapScene, stack_models
+from dexjax.quality.heap_reward import HeapScene, heap_scene, scene_slot_ids
 from dexjax.render.noise import apply_sensor_noise
 from dexjax.render.rendering import DepthRenderer, build_render_scene
 from dexjax.sim.bodies import heap_objects
@@ -141,10 +141,8 @@ class ShardGenerator:
                   friction: np.ndarray) -> tuple[HeapScene, Any, Any]:
     """The reward's scene of one heap (its P models stacked in slot order, the state's friction per slot) and
     its slots' grasp sets."""
-    slot_ids = np.where(mask, ids, ids[0]).astype(np.int64)
-    models = stack_models([self.models[int(i)] for i in slot_ids])
-    scene = HeapScene(models=models, object_ids=jnp.arange(len(ids), dtype=jnp.int32), mask=jnp.asarray(mask),
-                      poses=jnp.asarray(poses, jnp.float32), friction=jnp.asarray(friction, jnp.float32))
+    scene = heap_scene(self.models, ids, mask, poses, friction)
+    slot_ids = scene_slot_ids(ids, mask)
     pj, su = (jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[slot_ids]), s) for s in self.grasp_sets)
     return scene, pj, su
 

@@ -10,6 +10,7 @@ from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_
                                    with_known_friction)
 from dexjax.quality.gripper_geometry import GripperGeometry, jaw_collides, jaw_collision_points
 from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, RewardParams, RewardRecord, heap_grasp_reward,
+                                        heap_scene,
                                         parallel_jaw_collisions, parallel_jaw_heap_reward, stack_models,
                                         suction_collisions, suction_heap_reward)
 from dexjax.quality.wrench import NNLSResult, lift_bounded_groups, nnls, resists, wrench_residual
@@ -22,6 +23,6 @@ __all__ = [
     "robust_parallel_jaw_quality", "robust_suction_quality", "sample_conditions", "suction_perturbations", "with_known_friction",
     "NNLSResult", "lift_bounded_groups", "nnls", "resists", "wrench_residual", "GripperGeometry", "jaw_collides",
     "jaw_collision_points", "REWARD_FAILURES",
-    "HeapScene", "RewardParams", "RewardRecord", "heap_grasp_reward", "parallel_jaw_collisions",
+    "HeapScene", "RewardParams", "RewardRecord", "heap_grasp_reward", "heap_scene", "parallel_jaw_collisions",
     "parallel_jaw_heap_reward", "stack_models", "suction_collisions", "suction_heap_reward",
 ]

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -129,6 +129,31 @@ def stack_models(models: Sequence[ObjectModel]) -> ObjectModel:
   if len(shapes) != 1:
     raise ValueError(f'stack_models: expected models of one grid size, got sdf shapes {sorted(shapes)}')
   return jax.tree.map(lambda *xs: jnp.stack(xs), *models)
+
+
+def scene_slot_ids(object_ids: Any, mask: Any) -> np.ndarray:
+  """(P,) int64 model index of each slot of a `heap_scene`: ``object_ids`` where ``mask``, else the first
+  object's (so per-slot tables, e.g. grasp sets, can be gathered the same way)."""
+  ids, mask = np.asarray(object_ids), np.asarray(mask, bool)
+  first = int(ids[mask][0]) if mask.any() else 0
+  return np.where(mask, ids, first).astype(np.int64)
+
+
+def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses: Any, friction: Any) -> HeapScene:
+  """The `HeapScene` of one heap of P slots from the available objects' models: slot i's model is
+  ``models[object_ids[i]]`` (empty slots repeat the first object's; ignored by the reward).
+
+  Args:
+    models: the N available objects' models (one grid size).
+    object_ids: (P,) ints into ``models`` (anything where not ``mask``); mask: (P,) bool.
+    poses: (P, 7) object-frame poses (xyz metres, wxyz); friction: (P,) Coulomb friction per slot.
+  """
+  mask = np.asarray(mask, bool)
+  slot_ids = scene_slot_ids(object_ids, mask)
+  return HeapScene(models=stack_models([models[int(i)] for i in slot_ids]),
+                   object_ids=jnp.arange(len(slot_ids), dtype=jnp.int32), mask=jnp.asarray(mask),
+                   poses=jnp.asarray(poses, jnp.float32),
+                   friction=jnp.asarray(np.where(mask, np.asarray(friction), 0.0), jnp.float32))
 
 
 def _stacked_sdf(models: ObjectModel, index: jax.Array, x: jax.Array) -> jax.Array:

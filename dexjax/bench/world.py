@@ -1,0 +1,172 @@
+"""The simulated bin of a benchmark trial: fill it, look at it, take an object out, let the rest settle.
+
+`PickingWorld` holds what a process needs for trials of one object set (built like a generation run's objects,
+from a `dexjax.generate.GenerateConfig`: the same object sources, bin, settling physics, camera distribution,
+sensor noise, grippers and reward): the prepared objects, their collision bodies and quality models, and a
+depth renderer. A trial's state is a `BinState` (plain NumPy arrays, P padded slots): which objects are in the
+bin, where, and their friction. Every step is a function of the state and a key, so a trial restarted from a
+logged state continues exactly as it would have.
+
+* `PickingWorld.fill`: the seed's protocol, "the bin is filled with a random configuration of objects": the
+  trial's objects (all of the set, or a random subset) are dropped from the heap distribution's drop area,
+  intersecting drops raised (`dexjax.sim.drop_poses`), and settled; objects that leave the bin are taken out.
+* `PickingWorld.observe`: the depth image (and true segmentation) from a camera, with the run's sensor noise;
+  `PickingWorld.empty_bin` the background image of that camera.
+* `PickingWorld.remove`: the object lifted out, the rest settled again from where they lay
+  (`dexjax.sim.settle` with ``start_poses``); `PickingWorld.settle_again` for a heap disturbed in place.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dexjax.generate.cameras import image_size
+from dexjax.generate.config import GenerateConfig
+from dexjax.generate.labels import LabelParams
+from dexjax.generate.pipeline import label_params, usable_objects
+from dexjax.quality.heap_reward import HeapScene, heap_scene
+from dexjax.render.camera import Camera
+from dexjax.render.noise import apply_sensor_noise
+from dexjax.render.rendering import DepthRenderer, build_render_scene, empty_bin_scene
+from dexjax.sim.bodies import heap_objects
+from dexjax.sim.heap import HeapState, sample_heap_state
+from dexjax.sim.settling import settle
+
+_noise = jax.jit(apply_sensor_noise)
+
+
+@dataclasses.dataclass(frozen=True)
+class BinState:
+  """The objects in the bin (P padded slots, NumPy).
+
+  Attributes:
+    object_ids: (P,) int32 index into `PickingWorld.names` (-1 in empty slots).
+    mask: (P,) bool, the slot's object is in the bin.
+    poses: (P, 7) float64 object-frame poses in the world (xyz metres, quaternion wxyz).
+    friction: (P,) float32 Coulomb friction of each object (drawn once, when the bin is filled).
+  """
+
+  object_ids: np.ndarray
+  mask: np.ndarray
+  poses: np.ndarray
+  friction: np.ndarray
+
+  @property
+  def count(self) -> int:
+    """Objects left in the bin."""
+    return int(self.mask.sum())
+
+  def to_json(self) -> dict[str, Any]:
+    """Plain lists (exact: float64 poses survive a JSON round trip as Python floats)."""
+    return {'object_ids': self.object_ids.tolist(), 'mask': self.mask.tolist(), 'poses': self.poses.tolist(),
+            'friction': self.friction.astype(np.float64).tolist()}
+
+  @classmethod
+  def from_json(cls, data: dict[str, Any]) -> BinState:
+    return cls(object_ids=np.asarray(data['object_ids'], np.int32), mask=np.asarray(data['mask'], bool),
+               poses=np.asarray(data['poses'], np.float64), friction=np.asarray(data['friction'], np.float32))
+
+
+class PickingWorld:
+  """The objects, physics and renderer of a benchmark's trials (one per process; close it, or use ``with``).
+
+  Attributes:
+    config: the `GenerateConfig` the world is built from (objects, bin, settle, camera, noise, grippers).
+    names: the N usable objects' names; `BinState.object_ids` index into this list.
+    rejected: object sources or files that could not be used, with reasons.
+    params: the analytic reward's `LabelParams` (grippers, perturbations, reward settings, bin).
+  """
+
+  def __init__(self, config: GenerateConfig, *, cache_dir: str | os.PathLike[str] | None = None):
+    self.config = config
+    prepared, self.rejected = usable_objects(config, cache_dir)
+    self.names = [p.name for p in prepared]
+    self.meshes = [p.mesh for p in prepared]
+    self.models = [p.model for p in prepared]
+    self.bodies = heap_objects(prepared)
+    self.params: LabelParams = label_params(config)
+    width, height = image_size(config)
+    self.renderer = DepthRenderer(width, height, backend=config.dataset.render_backend, settings=config.render)
+
+  def close(self) -> None:
+    self.renderer.close()
+
+  def __enter__(self) -> PickingWorld:
+    return self
+
+  def __exit__(self, *exc: Any) -> None:
+    self.close()
+
+  def _heap_state(self, state: BinState) -> HeapState:
+    ids = np.where(state.mask, state.object_ids, 0).astype(np.int32)
+    return HeapState(object_ids=ids, mask=state.mask.copy(), positions=state.poses[:, :3].astype(np.float32),
+                     quaternions=state.poses[:, 3:].astype(np.float32), friction=state.friction.copy())
+
+  def fill(self, key: jax.Array, count: int) -> BinState:
+    """A bin of ``count`` distinct objects drawn from the N usable ones (all of them when ``count == N``),
+    dropped and settled; objects that left the bin are out of the returned state.
+
+    Raises:
+      ValueError: ``count`` is not in [1, N].
+    """
+    n = len(self.names)
+    if not 1 <= count <= n:
+      raise ValueError(f'per-trial object count: expected an integer in [1, {n}] (the usable objects), got {count}')
+    dist = self.config.heap.replace(count_mean=float(count), min_count=count, max_count=count)
+    heap = jax.device_get(sample_heap_state(key, n, dist))
+    result = settle(self.bodies, heap, backend='rollout', settings=self.config.settle)
+    mask = result.mask[0] & ~result.left_bin[0]
+    return BinState(object_ids=np.where(mask, heap.object_ids, -1).astype(np.int32), mask=mask,
+                    poses=result.poses[0].astype(np.float64), friction=np.asarray(heap.friction, np.float32))
+
+  def settle_again(self, state: BinState) -> BinState:
+    """The state after the bin's objects settle from their current poses (objects leaving the bin are out)."""
+    if not state.count:
+      return state
+    result = settle(self.bodies, self._heap_state(state), backend='rollout', settings=self.config.settle,
+                    start_poses=state.poses)
+    mask = state.mask & ~result.left_bin[0]
+    poses = np.where(state.mask[:, None], result.poses[0], state.poses)
+    return BinState(object_ids=np.where(mask, state.object_ids, -1).astype(np.int32), mask=mask, poses=poses,
+                    friction=state.friction)
+
+  def remove(self, state: BinState, slot: int) -> BinState:
+    """The state after the object in ``slot`` is lifted out and the others settle again."""
+    if not state.mask[slot]:
+      raise ValueError(f'remove: slot {slot} holds no object (objects in slots {np.flatnonzero(state.mask).tolist()})')
+    mask = state.mask.copy()
+    mask[slot] = False
+    ids = state.object_ids.copy()
+    ids[slot] = -1
+    return self.settle_again(dataclasses.replace(state, mask=mask, object_ids=ids))
+
+  def scene(self, state: BinState) -> HeapScene:
+    """The analytic reward's view of the bin: the objects' models in slot order, poses and friction."""
+    return heap_scene(self.models, state.object_ids, state.mask, state.poses, state.friction)
+
+  def observe(self, key: jax.Array, state: BinState, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(depth (H, W) float32 metres with the run's sensor noise, NaN where invalid; the true segmentation
+    (H, W) int32: the heap slot of each object pixel, `dexjax.render.BIN_LABEL` for the bin,
+    `dexjax.render.INVALID_LABEL` where nothing was seen)."""
+    scene = build_render_scene(self.meshes, np.where(state.mask, state.object_ids, -1), state.poses, state.mask,
+                               bin=self.config.bin)
+    rendered = self.renderer.render(scene, camera)
+    depth = rendered.depth
+    noise = self.config.noise
+    if any((noise.use_gamma, noise.use_gp, noise.use_dropout)):
+      depth = np.asarray(_noise(key, jnp.asarray(depth), noise), np.float32)
+    return np.asarray(depth, np.float32), np.asarray(rendered.mask, np.int32)
+
+  def empty_bin(self, camera: Camera) -> np.ndarray:
+    """(H, W) float32 depth of the empty bin from ``camera`` (noise-free): the background image a bin-picking
+    cell records once, for segmenting objects by background subtraction."""
+    return np.asarray(self.renderer.render(empty_bin_scene(bin=self.config.bin), camera).depth, np.float32)
+
+
+__all__ = ['BinState', 'PickingWorld']
