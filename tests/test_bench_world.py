@@ -7,6 +7,7 @@ import json
 import jax
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from dexjax.bench.world import BinState, PickingWorld
 from dexjax.generate.config import config_from_dict
@@ -15,14 +16,14 @@ from dexjax.render.distribution import camera_from_spherical
 from dexjax.render.rendering import BIN_LABEL
 
 SOURCES = ['builtin:cube', 'builtin:box', 'builtin:cylinder', 'builtin:l_shape', 'procedural:L1/0:2']
+CAMERA_RANGES = {'width': 160, 'height': 160, 'focal': [170.0, 180.0], 'cx': [79.0, 81.0], 'cy': [79.0, 81.0]}
 CAMERA = camera_from_spherical(np.zeros(3), 0.7, 4.71, 0.05, Intrinsics(fx=300.0, fy=300.0, cx=80.0, cy=80.0,
                                                                         width=160, height=160))
 
 
 @pytest.fixture(scope='module')
 def world(tmp_path_factory):
-  config = config_from_dict({'objects': {'sources': SOURCES, 'grid_size': 32},
-                                      'camera': {'width': 160, 'height': 160}}, 'test')
+  config = config_from_dict({'objects': {'sources': SOURCES, 'grid_size': 32}, 'camera': CAMERA_RANGES}, 'test')
   with PickingWorld(config, cache_dir=tmp_path_factory.mktemp('world_cache')) as w:
     yield w
 
@@ -77,3 +78,81 @@ def test_scene_stacks_each_slots_model_with_its_pose_and_friction(world, full):
     np.testing.assert_array_equal(np.asarray(scene.models.sdf[slot]), np.asarray(world.models[after.object_ids[slot]].sdf))
   np.testing.assert_allclose(np.asarray(scene.poses), after.poses, atol=1e-6)
   assert np.all(np.asarray(scene.friction)[~after.mask] == 0.0)
+
+
+# --- Trials: the protocol's stopping rules with scripted policies and the real analytic judge -----------------
+
+from dexjax.bench.protocol import Protocol, stop_reason  # noqa: E402
+from dexjax.bench.trial import analytic_judge, run_trial  # noqa: E402
+from dexjax.policy import action_from_grasp  # noqa: E402
+from dexjax.sampling.image_grasps import ImageSuctionGrasp  # noqa: E402
+
+
+def top_suction(key, obs):
+  """A scripted policy: suction straight down (world) at the centre of the highest surface it sees."""
+  del key
+  depth, mask = np.asarray(obs.depth), np.asarray(obs.mask)
+  points = np.asarray(obs.camera.rotation) @ np.stack([  # world z of every pixel (camera looks down)
+      (np.arange(depth.shape[1])[None] - float(obs.camera.intrinsics.cx)) / float(obs.camera.intrinsics.fx) * depth,
+      (np.arange(depth.shape[0])[:, None] - float(obs.camera.intrinsics.cy)) / float(obs.camera.intrinsics.fy) * depth,
+      depth]).reshape(3, -1)
+  height = (points[2].reshape(depth.shape) + float(obs.camera.position[2]))
+  masked = np.where(mask, height, -np.inf)
+  top, _ = ndimage.label(mask & (height > masked.max() - 0.003))  # the highest face: its connected piece
+  v, u = np.argwhere(top == top[np.unravel_index(np.argmax(masked), masked.shape)]).mean(axis=0)
+  down = np.asarray(obs.camera.rotation).T @ np.array([0.0, 0.0, -1.0])
+  grasp = ImageSuctionGrasp(center=np.array([u, v], np.float32), angle=np.float32(np.arctan2(-down[0], down[1])),
+                            depth=np.float32(depth[int(round(v)), int(round(u))]),
+                            approach_angle=np.float32(np.arccos(np.clip(down[2], -1, 1))))
+  return action_from_grasp(obs, grasp, np.float32(1.0), True)
+
+
+def no_grasp(key, obs):
+  return top_suction(key, obs).replace(valid=np.bool_(False))
+
+
+def test_stop_reason_follows_the_seed():
+  seed = Protocol()
+  assert (seed.objects_per_trial, seed.trials, seed.max_attempts, seed.max_consecutive_failures) == (25, 5, 75, 10)
+  assert stop_reason(0, 75, 10, seed) == 'empty'
+  assert stop_reason(3, 75, 0, seed) == 'max_attempts' and stop_reason(3, 74, 0, seed) is None
+  assert stop_reason(3, 20, 10, seed) == 'consecutive_failures' and stop_reason(3, 20, 9, seed) is None
+  with pytest.raises(ValueError, match='Protocol.trials: expected an integer >= 1'):
+    Protocol(trials=0).validate()
+
+
+@pytest.fixture(scope='module')
+def boxes(tmp_path_factory):
+  """A world of a cube and a box: flat tops the scripted suction policy always takes."""
+  config = config_from_dict({'objects': {'sources': ['builtin:cube', 'builtin:box'], 'grid_size': 32},
+                             'camera': CAMERA_RANGES}, 'test')
+  with PickingWorld(config, cache_dir=tmp_path_factory.mktemp('boxes_cache')) as w:
+    yield w
+
+
+def test_a_policy_that_picks_every_object_empties_the_bin_and_resumes_identically(boxes, tmp_path):
+  world = boxes
+  judges = {'analytic': analytic_judge(world)}
+  protocol = Protocol(objects_per_trial=2)
+  log = tmp_path / 'attempts.jsonl'
+  records = run_trial(world, top_suction, judges, policy='top', trial=0, protocol=protocol, log_path=log)
+  assert records[-1]['stop'] == 'empty' and records[-1]['objects_left'] == 0
+  assert sum(r['success'] for r in records) == 2 and all(r['analytic'] == r['success'] for r in records)
+  assert all(r['object'] is not None and r['gripper'] == 'suction' for r in records)
+  from dexjax.bench import read_attempts
+  assert read_attempts(log) == records
+  resumed = run_trial(world, top_suction, judges, policy='top', trial=0, protocol=protocol, logged=records[:1])
+  timing = ('plan_seconds',)
+  strip = lambda rs: [{k: v for k, v in r.items() if k not in timing} for r in rs]
+  assert strip(resumed) == strip(records)
+
+
+def test_consecutive_failures_and_the_attempt_budget_end_a_trial(world):
+  judges = {'analytic': analytic_judge(world)}
+  records = run_trial(world, no_grasp, judges, policy='none', trial=1,
+                      protocol=Protocol(objects_per_trial=2, max_consecutive_failures=3))
+  assert [r['stop'] for r in records] == [None, None, 'consecutive_failures']
+  assert all(r['reason'] == 'no_grasp' and r['objects_left'] == 2 for r in records)
+  records = run_trial(world, no_grasp, judges, policy='none', trial=1,
+                      protocol=Protocol(objects_per_trial=2, max_attempts=2))
+  assert [r['stop'] for r in records] == [None, 'max_attempts']

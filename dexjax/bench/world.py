@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from typing import Any
 
 import jax
@@ -39,6 +40,13 @@ from dexjax.sim.heap import HeapState, sample_heap_state
 from dexjax.sim.settling import settle
 
 _noise = jax.jit(apply_sensor_noise)
+_PROCEDURAL_LEVEL = re.compile(r'procedural:L([123])/')
+
+
+def object_level(name: str) -> int | None:
+  """The seed's difficulty level of an object named by its source: 1-3 for ``procedural:L<k>/...``, else None."""
+  match = _PROCEDURAL_LEVEL.match(name)
+  return int(match.group(1)) if match else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +87,7 @@ class PickingWorld:
   Attributes:
     config: the `GenerateConfig` the world is built from (objects, bin, settle, camera, noise, grippers).
     names: the N usable objects' names; `BinState.object_ids` index into this list.
+    levels: the N objects' difficulty levels (1-3 for procedural objects of that level, else None).
     rejected: object sources or files that could not be used, with reasons.
     params: the analytic reward's `LabelParams` (grippers, perturbations, reward settings, bin).
   """
@@ -87,6 +96,7 @@ class PickingWorld:
     self.config = config
     prepared, self.rejected = usable_objects(config, cache_dir)
     self.names = [p.name for p in prepared]
+    self.levels = [object_level(name) for name in self.names]
     self.meshes = [p.mesh for p in prepared]
     self.models = [p.model for p in prepared]
     self.bodies = heap_objects(prepared)
@@ -169,4 +179,4 @@ class PickingWorld:
     return np.asarray(self.renderer.render(empty_bin_scene(bin=self.config.bin), camera).depth, np.float32)
 
 
-__all__ = ['BinState', 'PickingWorld']
+__all__ = ['BinState', 'PickingWorld', 'object_level']

@@ -1,0 +1,189 @@
+"""One benchmark trial: fill the bin, then look, plan, judge and pick until the protocol says stop.
+
+Every attempt: render the bin from the trial's camera with sensor noise (`PickingWorld.observe`), turn the image
+into the policy's `Observation` as a real cell would (holes inpainted, objects segmented against the empty-bin
+image: `dexjax.policy.prepare_observation`), plan (timed), ask every judge for a verdict, and advance the trial
+by the chosen judge's: on success the lifted object leaves the bin and the rest settle again; a judge that
+disturbed the heap returns its new state. Each attempt is appended to the attempt log with the state after it, so
+a trial killed at any point resumes from its last logged attempt with identical verdicts (keys are functions of
+the seed, trial and attempt number; only measured times differ).
+
+A *judge* is a callable ``judge(key, action, camera, state) -> (Verdict, state_after or None)``; a *planner*
+``planner(key, observation) -> GraspAction`` (concrete). `analytic_judge` wraps `analytic_verdict`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from dexjax.bench.analytic_judge import analytic_verdict
+from dexjax.bench.attempt_log import append_attempt
+from dexjax.bench.picking_metrics import MotionModel
+from dexjax.bench.protocol import Protocol, stop_reason
+from dexjax.bench.world import BinState, PickingWorld
+from dexjax.generate.cameras import run_camera
+from dexjax.policy.actions import GraspAction
+from dexjax.policy.observation import Observation
+from dexjax.policy.preprocess import prepare_observation
+from dexjax.quality.heap_reward import REWARD_FAILURES
+from dexjax.render.camera import Camera
+
+NO_GRASP = 'no_grasp'
+"""Failure reason of an attempt whose policy found no valid grasp (or saw no object)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Verdict:
+  """A judge's decision on one attempt.
+
+  Attributes:
+    success: exactly one object was lifted and held.
+    target_slot: the bin slot of the object the grasp took (or would take); -1 for none.
+    reason: ``'none'`` on success, else the failure's name (e.g. one of `REWARD_FAILURES`).
+    detail: JSON-able numbers of the judge (e.g. the robust probability).
+  """
+
+  success: bool
+  target_slot: int
+  reason: str
+  detail: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+Judge = Callable[[jax.Array, GraspAction, Camera, BinState], tuple[Verdict, BinState | None]]
+Planner = Callable[[jax.Array, Observation], GraspAction]
+
+
+def analytic_judge(world: PickingWorld) -> Judge:
+  """The analytic judge of ``world``: the labels' reward on the true bin; it never disturbs the heap."""
+  def judge(key: jax.Array, action: GraspAction, camera: Camera, state: BinState):
+    record = jax.device_get(analytic_verdict(key, action, camera, world.scene(state), world.params))
+    verdict = Verdict(success=bool(record.reward == 1), target_slot=int(record.target_slot),
+                      reason=REWARD_FAILURES[int(record.failure)],
+                      detail={'robust_probability': float(record.robust_probability)})
+    return verdict, None
+  return judge
+
+
+def trial_key(seed: int, trial: int) -> jax.Array:
+  """The key of trial ``trial`` of a benchmark seeded with ``seed`` (the same bins for every policy)."""
+  return jax.random.fold_in(jax.random.key(seed), trial)
+
+
+def _attempt_keys(key: jax.Array, attempt: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+  noise, plan, judge = jax.random.split(jax.random.fold_in(jax.random.fold_in(key, 2), attempt), 3)
+  return noise, plan, judge
+
+
+def _aimed_slot(action: GraspAction, segmentation: np.ndarray) -> int:
+  """The slot of the object under the grasp centre in the true segmentation (-1: the bin or nothing)."""
+  u, v = (int(round(float(x))) for x in np.asarray(action.center))
+  h, w = segmentation.shape
+  return int(segmentation[v, u]) if 0 <= v < h and 0 <= u < w and segmentation[v, u] >= 0 else -1
+
+
+def _plan(planner: Planner, key: jax.Array, depth: np.ndarray, camera: Camera,
+          background: np.ndarray) -> tuple[GraspAction | None, float]:
+  """(the planned action, or None when nothing could be planned; planning seconds incl. preprocessing)."""
+  start = time.perf_counter()
+  try:
+    obs, _ = prepare_observation(depth, camera, background=background)
+  except ValueError:  # no object pixel left (or no valid pixel): nothing to plan on
+    return None, time.perf_counter() - start
+  action = jax.device_get(planner(key, obs))
+  return (action if bool(action.valid) else None), time.perf_counter() - start
+
+
+def _action_fields(action: GraspAction | None) -> dict[str, Any]:
+  if action is None:
+    return {'gripper': None, 'q': None, 'center': None, 'angle': None, 'depth': None, 'approach_angle': None}
+  return {'gripper': action.gripper_name, 'q': float(action.probability), 'center': np.asarray(action.center).tolist(),
+          'angle': float(action.angle), 'depth': float(action.depth), 'approach_angle': float(action.approach_angle)}
+
+
+def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge], *, policy: str, trial: int,
+              seed: int = 0, advance_by: str = 'analytic', protocol: Protocol = Protocol(),
+              motion: MotionModel = MotionModel(), log_path: str | os.PathLike[str] | None = None,
+              logged: Sequence[Mapping[str, Any]] = ()) -> list[dict[str, Any]]:
+  """Runs (or resumes) trial ``trial`` of ``policy``; returns all its attempt records.
+
+  Args:
+    world: the bin's objects, physics and renderer.
+    planner: the policy, ``planner(key, observation) -> GraspAction``.
+    judges: name -> judge; every judge rules on every attempt (its verdict is recorded as ``verdicts[name]``).
+    policy: the policy's name (recorded).
+    trial: the trial's index; with ``seed``, it fixes the bin, the camera and every attempt's keys.
+    advance_by: the judge whose verdict advances the trial (a key of ``judges``).
+    protocol: trial settings (objects per trial, stopping rules).
+    motion: robot motion-time model (recorded per attempt for picks per hour).
+    log_path: attempts are appended here as they end (`dexjax.bench.append_attempt`); None: not logged.
+    logged: this trial's records already in the log (from a killed run); the trial continues after them.
+
+  Raises:
+    ValueError: ``advance_by`` is not a judge, or the protocol is invalid.
+  """
+  protocol.validate()
+  if advance_by not in judges:
+    raise ValueError(f'advance_by: expected one of the judges {sorted(judges)}, got {advance_by!r}')
+  records = [dict(r) for r in logged]
+  if records and records[-1]['stop'] is not None:
+    return records
+  key = trial_key(seed, trial)
+  camera = run_camera(jax.random.fold_in(key, 1), world.config)
+  background = world.empty_bin(camera)
+  if records:
+    state = BinState.from_json(records[-1]['state'])
+    failures = records[-1]['consecutive_failures']
+  else:
+    state, failures = world.fill(jax.random.fold_in(key, 0), protocol.objects_per_trial), 0
+  attempt = len(records)
+  while stop_reason(state.count, attempt, failures, protocol) is None:
+    k_noise, k_plan, k_judge = _attempt_keys(key, attempt)
+    depth, segmentation = world.observe(k_noise, state, camera)
+    action, plan_seconds = _plan(planner, k_plan, depth, camera, background)
+    verdicts: dict[str, Verdict] = {}
+    after: BinState | None = None
+    for name, judge in judges.items():
+      if action is None:
+        verdicts[name] = Verdict(success=False, target_slot=-1, reason=NO_GRASP)
+        continue
+      verdict, disturbed = judge(jax.random.fold_in(k_judge, len(verdicts)), action, camera, state)
+      verdicts[name] = verdict
+      if name == advance_by:
+        after = disturbed
+    chosen = verdicts[advance_by]
+    aimed = chosen.target_slot if chosen.target_slot >= 0 else (_aimed_slot(action, segmentation) if action else -1)
+    object_id = int(state.object_ids[aimed]) if aimed >= 0 else -1
+    if chosen.success:
+      base = after if after is not None else state
+      state = world.remove(base, chosen.target_slot) if base.mask[chosen.target_slot] else world.settle_again(base)
+      failures = 0
+    else:
+      state = world.settle_again(after) if after is not None else state
+      failures += 1
+    attempt += 1
+    stop = stop_reason(state.count, attempt, failures, protocol)
+    record = {'policy': policy, 'trial': trial, 'attempt': attempt - 1, **_action_fields(action),
+              'judge': advance_by, 'success': chosen.success, 'reason': chosen.reason,
+              'verdicts': {n: {'success': v.success, 'reason': v.reason, 'target_slot': v.target_slot, **v.detail}
+                           for n, v in verdicts.items()},
+              'object': world.names[object_id] if object_id >= 0 else None,
+              'level': world.levels[object_id] if object_id >= 0 else None,
+              'plan_seconds': plan_seconds, 'motion_seconds': motion.attempt_seconds(),
+              'objects_left': state.count, 'consecutive_failures': failures, 'stop': stop,
+              'state': state.to_json()}
+    for name in ('analytic', 'physics'):
+      record[name] = verdicts[name].success if name in verdicts else None
+    if log_path is not None:
+      append_attempt(log_path, record)
+    records.append(record)
+  return records
+
+
+__all__ = ['Judge', 'NO_GRASP', 'Planner', 'Verdict', 'analytic_judge', 'run_trial', 'trial_key']
