@@ -6,6 +6,7 @@
   python scripts/pretrain.py score --run RUN --eval NAME=DIR ...
   python scripts/pretrain.py ship --run RUN --eval NAME=DIR ... --data DIR --data-command "..." \
                                   --train-command "..."
+  python scripts/pretrain.py s1 --data DIR ... [--model pretrained] [--rows 1000]
 
 ``curve`` trains one run per fraction of the dataset's shards (the first k shards: shards hold independent
 heaps, so a prefix is a uniform subset) into ``OUT/rows-<fraction>``, each resumable (rerun the same command), and
@@ -13,7 +14,8 @@ scores each run's best models on its validation split and on every ``--eval`` da
 training); it writes ``OUT/curve.json`` after each run and prints it. ``score`` prints the same scores for one run.
 ``ship`` writes the run's best models into the package (``dexjax/models/weights/<gripper>.msgpack``, read by
 `dexjax.models.pretrained`) with a model card's facts in their ``info``: the data (command, objects, rows), the
-network, the training (command, seconds) and the metrics. Nothing here is needed to *use* the shipped models.
+network, the training (command, seconds) and the metrics. ``s1`` prints Fig. S1 (C) as numbers: the t-SNE
+separation of every layer on random rows of unseen objects. Nothing here is needed to *use* the shipped models.
 """
 
 from __future__ import annotations
@@ -127,6 +129,23 @@ def _ship(args) -> dict:
   return {'written': written, 'metrics': scores}
 
 
+def _figure_s1(args) -> dict:
+  """Fig. S1 (C) as numbers: each layer's t-SNE separation of the shipped (or given) models on ``--rows``
+  random rows of each gripper from the ``--data`` sets (objects never used in training)."""
+  import numpy as np  # pylint: disable=g-import-not-at-top
+  from dexjax.models import load_models  # pylint: disable=g-import-not-at-top
+  from dexjax.models.feature_analysis import analyse_layers  # pylint: disable=g-import-not-at-top
+  from dexjax.train import sample_examples  # pylint: disable=g-import-not-at-top
+  out = {}
+  for gripper, model in load_models(args.model).items():
+    parts = [sample_examples(model, d, args.rows // len(args.data), split='all', seed=args.seed) for d in args.data]
+    ex = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    layers = analyse_layers(model, ex['crops'], ex['poses'], ex['labels'], seed=args.seed)
+    out[gripper] = {'rows': int(len(ex['labels'])), 'positives': int(ex['labels'].sum()),
+                    'separation': {name: round(float(r['separation']), 3) for name, r in layers.items()}}
+  return out
+
+
 def main(argv: list[str] | None = None) -> int:
   p = argparse.ArgumentParser(prog='python scripts/pretrain.py', description=__doc__.split('\n\n')[0])
   sub = p.add_subparsers(dest='command', required=True)
@@ -148,8 +167,15 @@ def main(argv: list[str] | None = None) -> int:
   h.add_argument('--data', required=True)
   h.add_argument('--data-command', required=True)
   h.add_argument('--train-command', required=True)
+  f = sub.add_parser('s1', help="Fig. S1 (C): per-layer t-SNE separation on unseen objects")
+  f.add_argument('--data', nargs='+', required=True)
+  f.add_argument('--model', default='pretrained')
+  f.add_argument('--rows', type=int, default=1000)
+  f.add_argument('--seed', type=int, default=0)
   args = p.parse_args(argv)
-  if args.command == 'curve':
+  if args.command == 's1':
+    result = _figure_s1(args)
+  elif args.command == 'curve':
     result = _curve(args)
   elif args.command == 'score':
     result = score_run(Path(args.run), _evals(args.eval))
