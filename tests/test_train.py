@@ -192,3 +192,37 @@ def test_crops_from_grasp_patches_equal_crops_of_the_whole_image(window, size):
   patches, local = grasp_patches(depth, centers, window)
   assert patches.shape[1] >= window * np.sqrt(2) and np.all(patches[3][:, :2] == 0)  # left of the image: 0
   np.testing.assert_allclose(local - centers, np.round(local - centers), atol=1e-5)  # integer shifts only
+
+
+def test_soft_targets_are_the_robust_probability_where_robustness_decided():
+  from dexjax.quality.heap_reward import REWARD_FAILURES
+  from dexjax.train import soft_labels
+  failures = np.array([REWARD_FAILURES.index(n) for n in
+                       ('none', 'not_robust', 'collision_object', 'collision_bin', 'multiple_objects')], np.int8)
+  rows = {'failure': failures, 'robust_probability': np.array([0.9, 0.3, 0.8, 0.7, 0.95], np.float32)}
+  np.testing.assert_allclose(soft_labels(rows), [0.9, 0.3, 0.0, 0.0, 0.0])
+  logits = jnp.array([[0.2, 1.0], [1.5, -0.5], [0.0, 0.0]])
+  labels = jnp.array([1, 0, 1])
+  # Hard soft-labels are the integer loss; a soft one is -(1 - s) log p0 - s log p1 (checked in NumPy).
+  np.testing.assert_allclose(cross_entropy(logits, labels, soft_labels=labels.astype(jnp.float32)),
+                             cross_entropy(logits, labels), rtol=1e-6)
+  s = np.array([0.7, 0.2, 0.5])
+  logp = np.log(np.exp(np.asarray(logits)) / np.exp(np.asarray(logits)).sum(1, keepdims=True))
+  w = np.array([1.0, 2.0, 0.0])
+  expected = (w * -((1 - s) * logp[:, 0] + s * logp[:, 1])).sum() / w.sum()
+  np.testing.assert_allclose(cross_entropy(logits, labels, jnp.asarray(w), jnp.asarray(s)), expected, rtol=1e-5)
+  from dexjax.train import train_config_from_dict
+  from dexjax.config import ConfigError
+  assert train_config_from_dict({'loop': {'target': 'robust_probability'}}, 'x.yaml').loop.target == 'robust_probability'
+  with pytest.raises(ConfigError, match="x.yaml: loop.target: expected one of"):
+    train_config_from_dict({'loop': {'target': 'soft'}}, 'x.yaml').validate('x.yaml')
+
+
+def test_a_step_on_soft_targets_lowers_the_soft_loss():
+  batch = _batch(0)
+  batch['soft_labels'] = jnp.clip(batch['labels'] * 0.8 + 0.1, 0.0, 1.0)
+  state = create_state(jax.random.key(0), SMALL, make_optimizer(OptimizerConfig(), steps_per_epoch=100))
+  soft = lambda st: float(cross_entropy(_logits(st, batch), batch['labels'], soft_labels=batch['soft_labels']))
+  before = soft(state)
+  state, stats = _step(state, batch, jax.random.key(1))
+  assert float(stats['loss']) == pytest.approx(before, rel=1e-5) and soft(state) < before

@@ -8,7 +8,7 @@ from dexjax.train.batches import GripperStats, dataset_stats, eval_batches, trai
 from dexjax.train.checkpoint import Checkpointer
 from dexjax.train.config import (BEST_METRICS, CLASS_BALANCE, CheckpointConfig, LoopConfig, QuickstartData,
                                  SplitConfig, TrainConfig, config_to_dict, load_train_config, train_config_from_dict)
-from dexjax.train.data import gripper_examples, pose_vectors, symmetrize
+from dexjax.train.data import gripper_examples, pose_vectors, soft_labels, symmetrize
 from dexjax.train.distributed import data_mesh, replicate, shard_batch
 from dexjax.train.validation import evaluate_model, sample_examples
 from dexjax.train.loop import Interrupted, check_trainable, final_state_params, sgd_step, train_gripper
@@ -23,6 +23,7 @@ __all__ = [
   'OptimizerConfig', 'QuickstartData', 'SplitConfig', 'TrainConfig', 'TrainState', 'average_precision',
   'check_run_dir', 'check_trainable', 'classification_metrics', 'config_to_dict', 'create_state', 'cross_entropy', 'data_mesh', 'dataset_stats',
   'eval_batches', 'eval_logits', 'evaluate_model', 'final_state_params', 'gripper_examples', 'learning_rate_schedule',
+  'soft_labels',
   'load_train_config', 'make_optimizer', 'plot_curves', 'pose_vectors', 'quickstart_dataset', 'read_records',
   'replicate', 'sample_examples', 'sgd_step', 'shard_batch', 'symmetrize', 'train_batches', 'train_config_from_dict', 'train_gripper',
   'train_run', 'train_step',

@@ -21,6 +21,7 @@ from dexjax.train.step import OptimizerConfig
 CLASS_BALANCE = ('none', 'weight', 'undersample')
 BEST_METRICS = ('val_balanced_accuracy', 'val_average_precision', 'val_accuracy', 'val_loss')
 _MODEL_TUPLES = ('conv_filters', 'conv_kernels', 'pool_after')
+TARGETS = ('label', 'robust_probability')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,6 +37,8 @@ class LoopConfig:
     normalization_rows: training rows (at most) the input statistics are fitted on.
     shuffle_buffer: rows mixed by the streaming loader (`dexjax.data.iterate_rows`).
     eval_batch_size: examples per validation forward pass.
+    target: ``'label'`` (Dex-Net 4.0: the reward, 0 or 1) or ``'robust_probability'`` (soft targets: the robust
+      probability of the M draws where robustness decided the reward, else 0; `dexjax.train.soft_labels`).
   """
 
   epochs: int = 12
@@ -45,6 +48,7 @@ class LoopConfig:
   normalization_rows: int = 20_000
   shuffle_buffer: int = 10_000
   eval_batch_size: int = 256
+  target: str = 'label'
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,6 +135,7 @@ class TrainConfig:
               ('loop.eval_batch_size', self.loop.eval_batch_size >= 1, 'an integer >= 1'),
               ('loop.normalization_rows', self.loop.normalization_rows >= 1, 'an integer >= 1'),
               ('loop.class_balance', self.loop.class_balance in CLASS_BALANCE, f'one of {CLASS_BALANCE}'),
+              ('loop.target', self.loop.target in TARGETS, f'one of {TARGETS}'),
               ('split.by', self.split.by in ('heap', 'object'), "'heap' or 'object'"),
               ('split.val_fraction', 0.0 < self.split.val_fraction < 1.0, 'a fraction in (0, 1)'),
               ('checkpoint.every_steps', self.checkpoint.every_steps >= 1, 'an integer >= 1'),

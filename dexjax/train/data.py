@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from dexjax.data.shards import GRIPPER_NAMES
+from dexjax.quality.heap_reward import NONE, NOT_ROBUST
 from dexjax.sampling.crops import model_crop
 
 
@@ -85,11 +86,22 @@ def pose_vectors(rows: Mapping[str, np.ndarray], gripper: str) -> np.ndarray:
   return np.stack(columns, axis=-1).astype(np.float32)
 
 
+def soft_labels(rows: Mapping[str, np.ndarray]) -> np.ndarray:
+  """(M,) float32 soft targets of rows: the robust probability where only robustness decided the reward
+  (failure 'none' or 'not_robust'), else 0 (a collision or a wrong object count fails whatever the draws).
+  Rows without a ``failure`` field (hand-made batches) get their reward as the target."""
+  if 'failure' not in rows:
+    return (np.asarray(rows['reward']) == 1).astype(np.float32)
+  decided = np.isin(np.asarray(rows['failure']), (NONE, NOT_ROBUST))
+  return np.where(decided, np.asarray(rows['robust_probability'], np.float32), 0.0).astype(np.float32)
+
+
 def gripper_examples(batch: Mapping[str, np.ndarray], gripper: str, crop_size: int = 96,
                      crop_window: int | None = None) -> dict[str, np.ndarray]:
   """The examples of ``gripper`` in a loader batch (``depth``: per-row images, stacked or an object array, see
   `grasp_patches`): ``crops`` (M, S, S, 1) metres (NaN depth becomes 0, as the
-  crop's border), ``poses`` (M, pose_dim), ``labels`` (M,) int32, ``robust_probability`` (M,).
+  crop's border), ``poses`` (M, pose_dim), ``labels`` (M,) int32, ``robust_probability`` (M,), ``soft_labels``
+  (M,) (`soft_labels`).
 
   ``crop_window`` (default ``crop_size``) is the side of the window read around the grasp, in image pixels; it is
   resampled to ``crop_size`` (S) pixels (Dex-Net 2.0's 96 -> 32 downsampling)."""
@@ -98,13 +110,14 @@ def gripper_examples(batch: Mapping[str, np.ndarray], gripper: str, crop_size: i
   rows = {k: np.asarray(v)[sel] for k, v in batch.items()}
   if not sel.any():
     return {'crops': np.zeros((0, crop_size, crop_size, 1), np.float32), 'poses': pose_vectors(rows, gripper),
-            'labels': np.zeros(0, np.int32), 'robust_probability': np.zeros(0, np.float32)}
+            'labels': np.zeros(0, np.int32), 'robust_probability': np.zeros(0, np.float32),
+            'soft_labels': np.zeros(0, np.float32)}
   window = crop_size if crop_window is None else crop_window
   patches, centers = grasp_patches(rows['depth'], rows['center'], window)
   crops = _bucketed_crops(patches, centers, np.asarray(rows['angle'], np.float32), window, crop_size)
   return {'crops': crops[..., None], 'poses': pose_vectors(rows, gripper),
           'labels': (rows['reward'] == 1).astype(np.int32),
-          'robust_probability': rows['robust_probability'].astype(np.float32)}
+          'robust_probability': rows['robust_probability'].astype(np.float32), 'soft_labels': soft_labels(rows)}
 
 
 def _reflect(image: jax.Array, axis: int) -> jax.Array:
@@ -129,4 +142,4 @@ def symmetrize(key: jax.Array, crop: jax.Array, pose: jax.Array, suction: bool) 
   return crop, pose
 
 
-__all__ = ['grasp_patches', 'gripper_examples', 'pose_vectors', 'symmetrize']
+__all__ = ['grasp_patches', 'gripper_examples', 'pose_vectors', 'soft_labels', 'symmetrize']

@@ -34,7 +34,7 @@ from dexjax.train.step import TrainState, create_state, learning_rate_schedule, 
 
 
 def _sgd_step(state: TrainState, batch: dict[str, jax.Array], norm, key: jax.Array, augment: bool,
-              suction: bool, subtract_depth: bool = False) -> tuple[TrainState, dict]:
+              suction: bool, subtract_depth: bool = False, soft: bool = False) -> tuple[TrainState, dict]:
   """Augmentation (per-example symmetries), normalisation (crops relative to the grasp depth with
   ``subtract_depth``) and one `train_step`."""
   crops, poses = batch['crops'], batch['poses']
@@ -43,10 +43,12 @@ def _sgd_step(state: TrainState, batch: dict[str, jax.Array], norm, key: jax.Arr
     crops, poses = jax.vmap(functools.partial(symmetrize, suction=suction))(keys, crops, poses)
   crops, poses = norm.apply(crops, poses, subtract_depth)
   step_batch = {'crops': crops, 'poses': poses, 'labels': batch['labels'], 'weights': batch['weights']}
+  if soft:
+    step_batch['soft_labels'] = batch['soft_labels']
   return train_step(state, step_batch, jax.random.fold_in(key, 1))
 
 
-sgd_step = jax.jit(_sgd_step, static_argnames=('augment', 'suction', 'subtract_depth'), donate_argnums=0)
+sgd_step = jax.jit(_sgd_step, static_argnames=('augment', 'suction', 'subtract_depth', 'soft'), donate_argnums=0)
 
 
 def _host(tree: Any) -> Any:
@@ -149,7 +151,8 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
           raise Interrupted(f'{gripper}: stopped at step {int(state.step)}')
         step_key = jax.random.fold_in(key, int(state.step) + 1)
         state, metrics = sgd_step(state, shard_batch(batch, mesh), norm, step_key, augment=config.loop.symmetrize,
-                                  suction=suction, subtract_depth=config.model.subtracts_grasp_depth)
+                                  suction=suction, subtract_depth=config.model.subtracts_grasp_depth,
+                                  soft=config.loop.target == 'robust_probability')
         progress_data['batch'] += 1
         progress_data['loss_sum'] += float(metrics['loss'])
         progress_data['accuracy_sum'] += float(metrics['accuracy'])

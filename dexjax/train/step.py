@@ -60,22 +60,28 @@ def create_state(key: jax.Array, model_config: GQCNNConfig, optimizer: optax.Gra
   return TrainState.create(apply_fn=GQCNN(model_config).apply, params=init_gqcnn(key, model_config), tx=optimizer)
 
 
-def cross_entropy(logits: jax.Array, labels: jax.Array, weights: jax.Array | None = None) -> jax.Array:
+def cross_entropy(logits: jax.Array, labels: jax.Array, weights: jax.Array | None = None,
+                  soft_labels: jax.Array | None = None) -> jax.Array:
   """() softmax cross-entropy of logits (B, 2) and integer labels (B,): the mean, or the ``weights`` (B,)
-  weighted mean sum(w l) / sum(w) (class balancing; zero weights mask padding)."""
-  losses = optax.softmax_cross_entropy_with_integer_labels(logits, labels)
+  weighted mean sum(w l) / sum(w) (class balancing; zero weights mask padding). With ``soft_labels`` (B,) in
+  [0, 1], the targets are the distributions (1 - s, s) instead of the integer labels."""
+  if soft_labels is None:
+    losses = optax.softmax_cross_entropy_with_integer_labels(logits, labels)
+  else:
+    losses = optax.softmax_cross_entropy(logits, jnp.stack([1.0 - soft_labels, soft_labels], axis=-1))
   if weights is None:
     return losses.mean()
   return jnp.sum(weights * losses) / jnp.maximum(jnp.sum(weights), 1e-12)
 
 
 def train_step(state: TrainState, batch: dict[str, jax.Array], key: jax.Array) -> tuple[TrainState, dict]:
-  """One SGD step on ``batch`` (optional ``weights`` (B,): a weighted loss); returns the new state, ``loss``
-  (cross-entropy before the step) and ``accuracy`` on the batch."""
+  """One SGD step on ``batch`` (optional ``weights`` (B,): a weighted loss; optional ``soft_labels`` (B,): soft
+  targets, see `cross_entropy`); returns the new state, ``loss`` (cross-entropy before the step) and
+  ``accuracy`` on the batch (against the integer labels)."""
 
   def loss_fn(params):
     logits = state.apply_fn({'params': params}, batch['crops'], batch['poses'], train=True, rngs={'dropout': key})
-    return cross_entropy(logits, batch['labels'], batch.get('weights')), logits
+    return cross_entropy(logits, batch['labels'], batch.get('weights'), batch.get('soft_labels')), logits
 
   (loss, logits), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
   accuracy = jnp.mean(jnp.argmax(logits, -1) == batch['labels'])
