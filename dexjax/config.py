@@ -231,6 +231,20 @@ def validate_generate_config(config: Any, source: str = "<config>") -> Any:
   return config
 
 
+def plain_json(value: Any, *, nan_to_none: bool = False) -> Any:
+  """JSON-ready copy of nested mappings and sequences: keys to strings, tuples to lists, NumPy scalars and
+  arrays to Python numbers and lists; with ``nan_to_none``, NaN and infinities to None (JSON has no NaN)."""
+  if isinstance(value, Mapping):
+    return {str(k): plain_json(v, nan_to_none=nan_to_none) for k, v in value.items()}
+  if isinstance(value, (list, tuple)):
+    return [plain_json(v, nan_to_none=nan_to_none) for v in value]
+  if hasattr(value, "tolist"):
+    return plain_json(value.tolist(), nan_to_none=nan_to_none)
+  if nan_to_none and isinstance(value, float) and not math.isfinite(value):
+    return None
+  return value
+
+
 def as_dict(obj: Any) -> Any:
   """Nested plain-Python view of a dataclass (arrays become lists), for writing reports and configs."""
   import numpy as np  # local: keeps this module importable without the array stack

@@ -232,6 +232,7 @@ def test_configs_and_their_errors(tmp_path):
   assert load_train_config('configs/quickstart.yaml') == TrainConfig() == load_train_config(None)
   shipped = load_train_config('configs/pretrained.yaml')  # the recipe of the shipped models (docs/models.md)
   assert (shipped.model.crop_size, shipped.crop_window, shipped.loop.class_balance) == (32, 96, 'weight')
+  assert shipped.model.input_depth_mode == 'im_depth_sub'
   finetune = load_train_config('configs/finetune.yaml')
   assert finetune.init == 'pretrained' and finetune.optimizer.learning_rate == 0.002 and finetune.loop.epochs == 4
   with pytest.raises(ConfigError, match="x.yaml: loop.class_balance: expected one of"):

@@ -9,33 +9,21 @@ line); a damaged whole line is an error naming the file and line, never silently
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from dexjax.config import plain_json
+
 
 class AttemptLogError(ValueError):
-  """A damaged attempt log (a record that is not a JSON object, before the last line)."""
-
-
-def _plain(value: Any) -> Any:
-  """JSON-safe copy: NaN/inf become None (JSON has no NaN), numpy scalars and arrays become Python values."""
-  if isinstance(value, Mapping):
-    return {str(k): _plain(v) for k, v in value.items()}
-  if isinstance(value, (list, tuple)):
-    return [_plain(v) for v in value]
-  if hasattr(value, 'tolist'):
-    return _plain(value.tolist())
-  if isinstance(value, float) and not math.isfinite(value):
-    return None
-  return value
+  """A damaged attempt log (a whole line that is not a JSON object)."""
 
 
 def append_attempt(path: str | os.PathLike[str], record: Mapping[str, Any]) -> None:
   """Appends ``record`` (a JSON-able mapping) as one line of ``path`` and flushes it to disk."""
-  line = (json.dumps(_plain(record), sort_keys=True, allow_nan=False) + '\n').encode('utf-8')
+  line = (json.dumps(plain_json(record, nan_to_none=True), sort_keys=True, allow_nan=False) + '\n').encode('utf-8')
   fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
   try:
     written = os.write(fd, line)

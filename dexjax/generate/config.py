@@ -18,7 +18,7 @@ import dataclasses
 import os
 from typing import Any, Mapping
 
-from dexjax.config import (ConfigError, as_dict, check_sections, load_yaml, override, string_list,
+from dexjax.config import (ConfigError, as_dict, plain_json, check_sections, load_yaml, override, string_list,
                            validate_generate_config)
 from dexjax.data.shards import FORMAT_VERSION, config_fingerprint
 from dexjax.generate.labels import LABEL_VERSION
@@ -253,15 +253,5 @@ def fingerprint(config: GenerateConfig) -> str:
   data.pop('seed')
   data['settle'].pop('nthread')  # threads change speed, not results
   data['versions'] = {'shard_format': FORMAT_VERSION, 'labels': LABEL_VERSION}
-  return config_fingerprint(_plain(data))
+  return config_fingerprint(plain_json(data))
 
-
-def _plain(value: Any) -> Any:
-  """JSON-ready copy: tuples to lists, NumPy scalars to Python numbers."""
-  if isinstance(value, dict):
-    return {str(k): _plain(v) for k, v in value.items()}
-  if isinstance(value, (list, tuple)):
-    return [_plain(v) for v in value]
-  if hasattr(value, 'item'):
-    return value.item()
-  return value
