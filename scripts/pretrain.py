@@ -7,6 +7,7 @@
   python scripts/pretrain.py ship --run RUN --eval NAME=DIR ... --data DIR --data-command "..." \
                                   --train-command "..."
   python scripts/pretrain.py s1 --data DIR ... [--model pretrained] [--rows 1000]
+  python scripts/pretrain.py ceiling --data DIR --shards N
 
 ``curve`` trains one run per fraction of the dataset's shards (the first k shards: shards hold independent
 heaps, so a prefix is a uniform subset) into ``OUT/rows-<fraction>``, each resumable (rerun the same command), and
@@ -15,7 +16,8 @@ training); it writes ``OUT/curve.json`` after each run and prints it. ``score`` 
 ``ship`` writes the run's best models into the package (``dexjax/models/weights/<gripper>.msgpack``, read by
 `dexjax.models.pretrained`) with a model card's facts in their ``info``: the data (command, objects, rows), the
 network, the training (command, seconds) and the metrics. ``s1`` prints Fig. S1 (C) as numbers: the t-SNE
-separation of every layer on random rows of unseen objects. Nothing here is needed to *use* the shipped models.
+separation of every layer on random rows of unseen objects; ``ceiling`` the balanced accuracy the labels' own
+Monte-Carlo noise allows. Nothing here is needed to *use* the shipped models.
 """
 
 from __future__ import annotations
@@ -129,6 +131,35 @@ def _ship(args) -> dict:
   return {'written': written, 'metrics': scores}
 
 
+def _label_ceiling(args) -> dict:
+  """How well any model could score against the labels' own noise: treating each row's measured robust
+  probability (M draws) as the truth, a fresh M-draw label is drawn for every row where robustness decided the
+  reward, and an oracle that predicts "truth > threshold" is scored against it (balanced accuracy). Only rows
+  decided by robustness carry this noise; collisions and wrong object counts are exact."""
+  import numpy as np  # pylint: disable=g-import-not-at-top
+  from dexjax.data import GRIPPER_NAMES, read_shard  # pylint: disable=g-import-not-at-top
+  from dexjax.quality.heap_reward import NONE, NOT_ROBUST  # pylint: disable=g-import-not-at-top
+  shards = [shard_path(args.data, i) for i in range(args.shards)]
+  rows = [read_shard(path).rows for path in shards]
+  cols = {k: np.concatenate([r[k] for r in rows]) for k in ('gripper', 'robust_probability', 'failure')}
+  data_config = json.loads((Path(args.data) / 'config.json').read_text())['config']
+  m, threshold = data_config['reward']['num_samples'], data_config['reward']['threshold']
+  rng = np.random.default_rng(args.seed)
+  out = {'rows': int(len(cols['gripper'])), 'num_samples': m, 'threshold': threshold}
+  for index, gripper in enumerate(GRIPPER_NAMES):
+    sel = cols['gripper'] == index
+    p = np.clip(cols['robust_probability'][sel].astype(np.float64), 0.0, 1.0)
+    decided = np.isin(cols['failure'][sel], (NONE, NOT_ROBUST))
+    label = decided & (rng.binomial(m, p) / m > threshold)
+    oracle = decided & (p > threshold)
+    tpr, tnr = (oracle & label).sum() / max(label.sum(), 1), (~oracle & ~label).sum() / max((~label).sum(), 1)
+    near = decided & (np.abs(p - threshold) <= 0.2)
+    out[gripper] = {'rows': int(sel.sum()), 'balanced_accuracy_ceiling': round(float((tpr + tnr) / 2), 3),
+                    'robustness_decided': round(float(decided.mean()), 3),
+                    'within_0.2_of_threshold': round(float(near.mean()), 3)}
+  return out
+
+
 def _figure_s1(args) -> dict:
   """Fig. S1 (C) as numbers: each layer's t-SNE separation of the shipped (or given) models on ``--rows``
   random rows of each gripper from the ``--data`` sets (objects never used in training)."""
@@ -172,8 +203,14 @@ def main(argv: list[str] | None = None) -> int:
   f.add_argument('--model', default='pretrained')
   f.add_argument('--rows', type=int, default=1000)
   f.add_argument('--seed', type=int, default=0)
+  n = sub.add_parser('ceiling', help="the labels' noise: an oracle's balanced accuracy against fresh M-draw labels")
+  n.add_argument('--data', required=True)
+  n.add_argument('--shards', type=int, required=True, help='the first N shards')
+  n.add_argument('--seed', type=int, default=0)
   args = p.parse_args(argv)
-  if args.command == 's1':
+  if args.command == 'ceiling':
+    result = _label_ceiling(args)
+  elif args.command == 's1':
     result = _figure_s1(args)
   elif args.command == 'curve':
     result = _curve(args)
