@@ -3,6 +3,8 @@ filters, top-activating crops against a brute-force search, t-SNE and the separa
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -33,6 +35,8 @@ def _reference(model, crops, poses):
   """Every layer of the GQ-CNN computed with NumPy from the parameters (float64)."""
   p = jax.tree.map(lambda v: np.asarray(v, np.float64), model.params)
   norm = model.normalization
+  if model.config.input_depth_mode == 'im_depth_sub':  # the crop relative to the grasp depth pose[0]
+    crops = crops - poses[:, None, None, :1]
   x = (crops - float(norm.image_mean)) / float(norm.image_std)
   q = (poses - np.asarray(norm.pose_mean)) / np.asarray(norm.pose_std)
   out = {}
@@ -65,8 +69,10 @@ def batch():
   return model, crops.astype(np.float32), poses.astype(np.float32)
 
 
-def test_activations_match_a_numpy_forward_pass(batch):
+@pytest.mark.parametrize('mode', ['im_depth_sub', 'pose_stream'])
+def test_activations_match_a_numpy_forward_pass(batch, mode):
   model, crops, poses = batch
+  model = model.replace(config=dataclasses.replace(model.config, input_depth_mode=mode))
   acts = layer_activations(model, crops, poses)
   ref = _reference(model, crops.astype(np.float64), poses.astype(np.float64))
   assert set(acts) == set(layer_names(model))
