@@ -83,7 +83,8 @@ def test_scene_stacks_each_slots_model_with_its_pose_and_friction(world, full):
 # --- Trials: the protocol's stopping rules with scripted policies and the real analytic judge -----------------
 
 from dexjax.bench.protocol import Protocol, stop_reason  # noqa: E402
-from dexjax.bench.trial import analytic_judge, run_trial  # noqa: E402
+from dexjax.bench.judges import analytic_judge  # noqa: E402
+from dexjax.bench.trial import run_trial  # noqa: E402
 from dexjax.policy import action_from_grasp  # noqa: E402
 from dexjax.sampling.image_grasps import ImageSuctionGrasp  # noqa: E402
 

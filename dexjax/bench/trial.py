@@ -8,8 +8,8 @@ disturbed the heap returns its new state. Each attempt is appended to the attemp
 a trial killed at any point resumes from its last logged attempt with identical verdicts (keys are functions of
 the seed, trial and attempt number; only measured times differ).
 
-A *judge* is a callable ``judge(key, action, camera, state) -> (Verdict, state_after or None)``; a *planner*
-``planner(key, observation) -> GraspAction`` (concrete). `analytic_judge` wraps `analytic_verdict`.
+Judges: `dexjax.bench.judges` (``judge(key, action, camera, state) -> (Verdict, state_after or None)``); a
+*planner* is ``planner(key, observation) -> GraspAction`` (concrete).
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from dexjax.bench.analytic_judge import analytic_verdict
 from dexjax.bench.attempt_log import append_attempt
+from dexjax.bench.judges import Judge, Verdict
 from dexjax.bench.picking_metrics import MotionModel
 from dexjax.bench.protocol import Protocol, stop_reason
 from dexjax.bench.world import BinState, PickingWorld
@@ -32,43 +32,13 @@ from dexjax.generate.cameras import run_camera
 from dexjax.policy.actions import GraspAction
 from dexjax.policy.observation import Observation
 from dexjax.policy.preprocess import prepare_observation
-from dexjax.quality.heap_reward import REWARD_FAILURES
 from dexjax.render.camera import Camera
 
 NO_GRASP = 'no_grasp'
 """Failure reason of an attempt whose policy found no valid grasp (or saw no object)."""
 
 
-@dataclasses.dataclass(frozen=True)
-class Verdict:
-  """A judge's decision on one attempt.
-
-  Attributes:
-    success: exactly one object was lifted and held.
-    target_slot: the bin slot of the object the grasp took (or would take); -1 for none.
-    reason: ``'none'`` on success, else the failure's name (e.g. one of `REWARD_FAILURES`).
-    detail: JSON-able numbers of the judge (e.g. the robust probability).
-  """
-
-  success: bool
-  target_slot: int
-  reason: str
-  detail: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-
-
-Judge = Callable[[jax.Array, GraspAction, Camera, BinState], tuple[Verdict, BinState | None]]
 Planner = Callable[[jax.Array, Observation], GraspAction]
-
-
-def analytic_judge(world: PickingWorld) -> Judge:
-  """The analytic judge of ``world``: the labels' reward on the true bin; it never disturbs the heap."""
-  def judge(key: jax.Array, action: GraspAction, camera: Camera, state: BinState):
-    record = jax.device_get(analytic_verdict(key, action, camera, world.scene(state), world.params))
-    verdict = Verdict(success=bool(record.reward == 1), target_slot=int(record.target_slot),
-                      reason=REWARD_FAILURES[int(record.failure)],
-                      detail={'robust_probability': float(record.robust_probability)})
-    return verdict, None
-  return judge
 
 
 def trial_key(seed: int, trial: int) -> jax.Array:
@@ -186,4 +156,4 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
   return records
 
 
-__all__ = ['Judge', 'NO_GRASP', 'Planner', 'Verdict', 'analytic_judge', 'run_trial', 'trial_key']
+__all__ = ['NO_GRASP', 'Planner', 'run_trial', 'trial_key']

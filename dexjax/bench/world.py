@@ -113,7 +113,8 @@ class PickingWorld:
   def __exit__(self, *exc: Any) -> None:
     self.close()
 
-  def _heap_state(self, state: BinState) -> HeapState:
+  def heap_state(self, state: BinState) -> HeapState:
+    """The `HeapState` of a bin (slots, ids, mask, friction; float32 poses) for `dexjax.sim` functions."""
     ids = np.where(state.mask, state.object_ids, 0).astype(np.int32)
     return HeapState(object_ids=ids, mask=state.mask.copy(), positions=state.poses[:, :3].astype(np.float32),
                      quaternions=state.poses[:, 3:].astype(np.float32), friction=state.friction.copy())
@@ -139,7 +140,7 @@ class PickingWorld:
     """The state after the bin's objects settle from their current poses (objects leaving the bin are out)."""
     if not state.count:
       return state
-    result = settle(self.bodies, self._heap_state(state), backend='rollout', settings=self.config.settle,
+    result = settle(self.bodies, self.heap_state(state), backend='rollout', settings=self.config.settle,
                     start_poses=state.poses)
     mask = state.mask & ~result.left_bin[0]
     poses = np.where(state.mask[:, None], result.poses[0], state.poses)
@@ -156,9 +157,13 @@ class PickingWorld:
     ids[slot] = -1
     return self.settle_again(dataclasses.replace(state, mask=mask, object_ids=ids))
 
-  def scene(self, state: BinState) -> HeapScene:
-    """The analytic reward's view of the bin: the objects' models in slot order, poses and friction."""
-    return heap_scene(self.models, state.object_ids, state.mask, state.poses, state.friction)
+  def scene(self, state: BinState, known_mass: bool = False) -> HeapScene:
+    """The analytic reward's view of the bin: the objects' models in slot order, poses and friction (and, with
+    ``known_mass``, each object's simulated mass instead of the reward's Gamma draws)."""
+    mass = None
+    if known_mass:
+      mass = np.array([self.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
+    return heap_scene(self.models, state.object_ids, state.mask, state.poses, state.friction, mass)
 
   def observe(self, key: jax.Array, state: BinState, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(depth (H, W) float32 metres with the run's sensor noise, NaN where invalid; the true segmentation

@@ -50,7 +50,7 @@ from dexjax.quality.gripper_geometry import (jaw_collision_points, jaw_contact_p
                                              suction_contact_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
                                    robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations,
-                                   with_known_friction)
+                                   with_known_friction, with_known_mass)
 
 if TYPE_CHECKING:
   from dexjax.sim.heap import Bin
@@ -75,6 +75,8 @@ class HeapScene:
       quaternion (w, x, y, z) rotating object coordinates into the world (`SettleResult.poses[b]`).
     friction: (P,) float32 Coulomb friction coefficient of each slot's object, part of the heap state
       (`HeapState.friction`, drawn once per object from the seed's truncated Gaussian).
+    mass: None (the seed's reward: the robust quality draws the mass from its Gamma distribution), or (P,) float32
+      each slot's known mass, kg (a simulated bin's true masses: the benchmark's ``known_mass`` judge).
   """
 
   models: ObjectModel
@@ -82,6 +84,7 @@ class HeapScene:
   mask: jax.Array
   poses: jax.Array
   friction: jax.Array
+  mass: jax.Array | None = None
 
 
 @struct.dataclass
@@ -139,7 +142,8 @@ def scene_slot_ids(object_ids: Any, mask: Any) -> np.ndarray:
   return np.where(mask, ids, first).astype(np.int64)
 
 
-def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses: Any, friction: Any) -> HeapScene:
+def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses: Any, friction: Any,
+               mass: Any = None) -> HeapScene:
   """The `HeapScene` of one heap of P slots from the available objects' models: slot i's model is
   ``models[object_ids[i]]`` (empty slots repeat the first object's; ignored by the reward).
 
@@ -147,13 +151,15 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
     models: the N available objects' models (one grid size).
     object_ids: (P,) ints into ``models`` (anything where not ``mask``); mask: (P,) bool.
     poses: (P, 7) object-frame poses (xyz metres, wxyz); friction: (P,) Coulomb friction per slot.
+    mass: None, or (P,) known mass per slot, kg (see `HeapScene`).
   """
   mask = np.asarray(mask, bool)
   slot_ids = scene_slot_ids(object_ids, mask)
   return HeapScene(models=stack_models([models[int(i)] for i in slot_ids]),
                    object_ids=jnp.arange(len(slot_ids), dtype=jnp.int32), mask=jnp.asarray(mask),
                    poses=jnp.asarray(poses, jnp.float32),
-                   friction=jnp.asarray(np.where(mask, np.asarray(friction), 0.0), jnp.float32))
+                   friction=jnp.asarray(np.where(mask, np.asarray(friction), 0.0), jnp.float32),
+                   mass=None if mass is None else jnp.asarray(np.where(mask, np.asarray(mass), 1.0), jnp.float32))
 
 
 def _stacked_sdf(models: ObjectModel, index: jax.Array, x: jax.Array) -> jax.Array:
@@ -202,12 +208,15 @@ def _to_object_frame(pose: jax.Array, point: jax.Array, directions: jax.Array):
   return (point - pose[:3]) @ rot, directions @ rot, rot
 
 
-def _state_perturbations(base: Perturbations, rot: jax.Array, friction: jax.Array,
-                         num_samples: int) -> Perturbations:
+def _state_perturbations(base: Perturbations, rot: jax.Array, friction: jax.Array, num_samples: int,
+                         mass: jax.Array | None = None) -> Perturbations:
   """``base`` with what the heap state fixes: gravity along the world's -z expressed in the object frame
-  (object-to-world ``rot``) and the object's Coulomb ``friction``; mass, pose and disturbance stay random."""
+  (object-to-world ``rot``) and the object's Coulomb ``friction`` (and its ``mass`` when known); the rest stays
+  random."""
   down = jnp.asarray(_WORLD_DOWN, jnp.float32) @ rot
   fixed = with_known_friction(base, friction)
+  if mass is not None:
+    fixed = with_known_mass(fixed, mass)
   return fixed.replace(gravity_axis=down, gravity_cone_angle=0.0, num_samples=num_samples)
 
 
@@ -291,7 +300,8 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
   center, dirs, rot = _to_object_frame(obj_pose, grasp.center, jnp.stack([grasp.axis, grasp.approach]))
   local = grasp.replace(center=center, axis=dirs[0], approach=dirs[1])
   base = parallel_jaw_perturbations() if perturbations is None else perturbations
-  pert = _state_perturbations(base, rot, scene.friction[jnp.maximum(target, 0)], params.num_samples)
+  pert = _state_perturbations(base, rot, scene.friction[jnp.maximum(target, 0)], params.num_samples,
+                              None if scene.mass is None else scene.mass[jnp.maximum(target, 0)])
   robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper, pert, params.quality)
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
@@ -312,7 +322,8 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   center, dirs, rot = _to_object_frame(obj_pose, grasp.center, grasp.approach[None])
   local = grasp.replace(center=center, approach=dirs[0])
   base = suction_perturbations() if perturbations is None else perturbations
-  pert = _state_perturbations(base, rot, scene.friction[jnp.maximum(target, 0)], params.num_samples)
+  pert = _state_perturbations(base, rot, scene.friction[jnp.maximum(target, 0)], params.num_samples,
+                              None if scene.mass is None else scene.mass[jnp.maximum(target, 0)])
   robust = robust_suction_quality(key, _target_model(scene, target), local, gripper, pert, params.quality)
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 

@@ -42,7 +42,7 @@ class Perturbations:
 
   Attributes:
     mass_mean: kg.
-    mass_variance: kg^2.
+    mass_variance: kg^2; 0 fixes the mass at ``mass_mean`` (`with_known_mass`).
     friction_mean: mean of the (pre-truncation) normal.
     friction_variance: variance of the (pre-truncation) normal; 0 fixes the friction at ``friction_mean``
       (clipped to ``friction_range``).
@@ -86,6 +86,12 @@ def with_known_friction(perturbations: Perturbations, friction: float | jax.Arra
   return perturbations.replace(friction_mean=friction, friction_variance=0.0)
 
 
+def with_known_mass(perturbations: Perturbations, mass: float | jax.Array) -> Perturbations:
+  """``perturbations`` with the object's mass fixed at ``mass`` (kg) instead of drawn from the Gamma distribution
+  (e.g. a simulated object's true mass); the other draws are unchanged."""
+  return perturbations.replace(mass_mean=mass, mass_variance=0.0)
+
+
 @struct.dataclass
 class RobustQuality:
   """Monte-Carlo estimate for one grasp.
@@ -103,8 +109,11 @@ def sample_conditions(key: jax.Array, perturbations: Perturbations, approach: ja
   """One draw of mass, friction, gravity direction and disturbance wrench."""
   k_mass, k_mu, k_grav, k_dist = jax.random.split(key, 4)
   p = perturbations
-  shape = p.mass_mean**2 / p.mass_variance
-  mass = jax.random.gamma(k_mass, shape) * (p.mass_variance / p.mass_mean)
+  var = jnp.asarray(p.mass_variance, jnp.float32)
+  safe_var = jnp.where(var > 0.0, var, 1.0)
+  shape = p.mass_mean**2 / safe_var
+  mass = jnp.where(var > 0.0, jax.random.gamma(k_mass, shape) * (safe_var / p.mass_mean),
+                   p.mass_mean)  # variance 0: a known mass
   low, high = p.friction_range
   std = jnp.sqrt(jnp.asarray(p.friction_variance, jnp.float32))
   safe = jnp.where(std > 0.0, std, 1.0)

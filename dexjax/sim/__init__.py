@@ -11,8 +11,8 @@ from dexjax.sim.bodies import (DEFAULT_DENSITY, DEFAULT_MASS_RANGE, HeapObject, 
 from dexjax.sim.heap import (MAX_OBJECTS, Bin, HeapDistribution, HeapState, sample_friction, sample_heap_state,
                              sample_heap_states, sample_object_count, sample_uniform_quaternion, select_heap,
                              truncated_poisson_pmf)
-from dexjax.sim.scene import (SettleSettings, bin_boxes, build_heap_model, drop_poses, heap_slots, initial_qpos,
-                              quat_to_matrix)
+from dexjax.sim.scene import (SettleSettings, bin_boxes, build_heap_model, compile_heap, drop_poses, heap_slots,
+                              heap_spec, initial_qpos, quat_to_matrix)
 from dexjax.sim.settling import (BACKENDS, SettleResult, SettleTimeout, default_backend, object_speeds, resting, rotate,
                                settle)
 
@@ -21,7 +21,7 @@ __all__ = [
     "MAX_OBJECTS", "Bin", "HeapDistribution", "HeapState", "sample_friction", "sample_heap_state",
     "sample_heap_states", "select_heap", "sample_object_count", "sample_uniform_quaternion",
     "truncated_poisson_pmf",
-    "SettleSettings", "bin_boxes", "build_heap_model", "drop_poses", "heap_slots", "initial_qpos", "quat_to_matrix",
+    "SettleSettings", "bin_boxes", "build_heap_model", "compile_heap", "heap_spec", "drop_poses", "heap_slots", "initial_qpos", "quat_to_matrix",
     "BACKENDS", "SettleResult", "SettleTimeout", "default_backend", "HeapRow", "posed_meshes",
     "save_heap_sheet", "procedural_heap_rows", "object_speeds", "resting", "rotate", "settle",
 ]

@@ -176,12 +176,14 @@ def drop_poses(objects: Sequence[HeapObject], state: HeapState, settings: Settle
   return positions, quats
 
 
-def build_heap_model(objects: Sequence[HeapObject], state: HeapState,
-                     settings: SettleSettings = SettleSettings()) -> mujoco.MjModel:
-  """The MuJoCo model of one (unbatched) heap: bin, ground plane and the heap's objects as free bodies.
+def heap_spec(objects: Sequence[HeapObject], state: HeapState, settings: SettleSettings = SettleSettings()
+              ) -> mujoco.MjSpec:
+  """The MuJoCo spec (not compiled) of one (unbatched) heap: bin, ground plane and the heap's objects as free
+  bodies, with the physics options of ``settings``; callers may add bodies (e.g. a gripper) before compiling.
 
-  Bodies follow `heap_slots` order (sorted by object id) and are named ``obj{slot}``; geom friction is the
-  state's per-object friction. The drop poses are not part of the model: see `initial_qpos`.
+  Bodies follow `heap_slots` order (sorted by object id) and are named ``obj{slot}``, their geoms
+  ``obj{slot}_hull{j}``; geom friction is the state's per-object friction; the bin's geoms are ``ground`` and
+  ``wall0``-``wall3``. The drop poses are not part of the model: see `initial_qpos`.
 
   Args:
     objects: the N available objects; ``state.object_ids`` index into it.
@@ -224,13 +226,26 @@ def build_heap_model(objects: Sequence[HeapObject], state: HeapState,
     mu = float(np.clip(friction[slot], mujoco.mjMINMU, None))
     for j, hull in enumerate(obj.hulls):
       spec.add_mesh(name=f'obj{slot}_hull{j}', uservert=hull.reshape(-1).tolist())
-      body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f'obj{slot}_hull{j}', friction=[mu, settings.torsional_friction, settings.rolling_friction],
+      body.add_geom(name=f'obj{slot}_hull{j}', type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f'obj{slot}_hull{j}',
+                    friction=[mu, settings.torsional_friction, settings.rolling_friction],
                     priority=_OBJECT_PRIORITY, condim=6 if settings.rolling_friction > 0 else 3)
+  return spec
+
+
+def compile_heap(spec: mujoco.MjSpec, objects: Sequence[HeapObject], state: HeapState) -> mujoco.MjModel:
+  """``spec.compile()`` with MuJoCo's error turned into a ValueError naming the heap's objects."""
   try:
     return spec.compile()
   except ValueError as e:
-    names = [objects[int(ids[s])].name for s in slots]
-    raise ValueError(f'build_heap_model: MuJoCo rejected the heap of objects {names}: {e}') from e
+    ids = np.asarray(state.object_ids)
+    names = [objects[int(ids[s])].name for s in heap_slots(state)]
+    raise ValueError(f'MuJoCo rejected the heap of objects {names}: {e}') from e
+
+
+def build_heap_model(objects: Sequence[HeapObject], state: HeapState,
+                     settings: SettleSettings = SettleSettings()) -> mujoco.MjModel:
+  """The compiled `heap_spec` of one heap (see there; ValueError also when MuJoCo rejects a hull)."""
+  return compile_heap(heap_spec(objects, state, settings), objects, state)
 
 
 def initial_qpos(objects: Sequence[HeapObject], state: HeapState,

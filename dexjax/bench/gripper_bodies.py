@@ -1,0 +1,152 @@
+"""The grippers as MuJoCo bodies, added to a heap's `MjSpec` for the physics judge.
+
+Both tools are a free body ``hand`` welded to a mocap body ``tool_target`` (the robot's commanded pose: the weld
+is a stiff spring, so a hand pushed against the bin or the heap gives a little instead of exerting unbounded
+force) and cancelled by gravity compensation. Their geometry is the collision solids of the analytic reward
+(`dexjax.quality.gripper_geometry`), in the grasp frame (x = approach, origin at the grasp centre or the cup's
+mouth):
+
+* **parallel jaw**: the palm and two finger pads (`ParallelJawGripper` sizes), each pad on a slide joint along
+  the jaw axis, driven by a position servo whose force is clipped to the gripper's ``force_limit``; the jaws start
+  open at the grasp's width and a command of 1 drives them ``close_overtravel`` past the centre, so a pad that
+  meets an object presses with exactly the force limit;
+* **suction**: the cup (a cylinder of the cup's radius and cone height) and the tool shaft behind it; the seal and
+  the vacuum hold are the judge's (`dexjax.bench.physics_judge`): one weld ``vacuum_<body>`` between the hand and
+  each object, inactive until a seal forms on that object.
+
+Gripper geoms never collide through MuJoCo's dynamic pairs (contype 2, conaffinity 0); every contact they can make
+is an explicit pair with each object hull, the floor and the walls, so a finger-object contact has the object's
+Coulomb friction and the soft-finger torsional friction of the analytic model, (2/3) mu r_f (condim 4), whatever the
+heap's own contact settings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+from dexjax.grippers import ParallelJawGripper, SuctionGripper
+from dexjax.quality.gripper_geometry import GripperGeometry
+
+HAND, TARGET, VACUUM = 'hand', 'tool_target', 'vacuum'
+FINGERS = ('finger_pos', 'finger_neg')
+"""Names of the jaw pads' bodies (and geoms): the pad on the +y (jaw axis) side and on the -y side."""
+PALM, CUP, SHAFT = 'palm', 'cup', 'shaft'
+_GRIPPER_GROUP = 2  # contype of gripper geoms; conaffinity 0: no dynamic contacts at all
+_Z_TO_X = [np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0]  # rotates a cylinder's z axis onto x
+
+
+@dataclasses.dataclass(frozen=True)
+class ToolSettings:
+  """Physical constants of the simulated tools (SI units).
+
+  Attributes:
+    hand_mass: mass of the hand body, kg (its weight is compensated).
+    finger_mass: mass of each jaw pad, kg.
+    finger_gain: stiffness of the jaw position servos, N/m (clipped to the gripper's force limit).
+    finger_damping: damping of the jaw slide joints, N s/m.
+    close_overtravel: the closed command drives each pad this far past the grasp centre, m (>= force limit /
+      gain, so a blocked pad presses with the full force limit).
+    weld_timeconst: time constant of the hand-to-target and vacuum welds (MuJoCo ``solref[0]``), s.
+    contact_timeconst: time constant of gripper contacts, s.
+    bin_friction: friction of gripper-bin contacts.
+  """
+
+  hand_mass: float = 0.3
+  finger_mass: float = 0.02
+  finger_gain: float = 2000.0
+  finger_damping: float = 20.0
+  close_overtravel: float = 0.03
+  weld_timeconst: float = 0.01
+  contact_timeconst: float = 0.005
+  bin_friction: float = 0.5
+
+
+def _box(body, name: str, centre: Sequence[float], half: Sequence[float], mass: float) -> None:
+  body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, pos=list(centre), size=list(half), mass=mass,
+                contype=_GRIPPER_GROUP, conaffinity=0, rgba=[0.3, 0.3, 0.35, 1.0])
+
+
+def _hand(spec: mujoco.MjSpec, pose: np.ndarray, tool: ToolSettings):
+  """The mocap target and the free hand welded to it, both at ``pose`` (4, 4)."""
+  quat = np.zeros(4)
+  mujoco.mju_mat2Quat(quat, np.ascontiguousarray(pose[:3, :3]).reshape(-1))
+  world = spec.worldbody
+  world.add_body(name=TARGET, mocap=True, pos=pose[:3, 3].tolist(), quat=quat.tolist())
+  hand = world.add_body(name=HAND, pos=pose[:3, 3].tolist(), quat=quat.tolist(), gravcomp=1.0)
+  hand.add_freejoint()
+  weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, name1=TARGET, name2=HAND, objtype=mujoco.mjtObj.mjOBJ_BODY)
+  weld.data = [0.0] * 10 + [1.0, 0.0]  # anchor 0, relative pose from the initial configuration, torquescale 1
+  weld.solref = [tool.weld_timeconst, 1.0]
+  return hand
+
+
+def add_parallel_jaw(spec: mujoco.MjSpec, pose: np.ndarray, width: float, gripper: ParallelJawGripper,
+                     tool: ToolSettings = ToolSettings()) -> None:
+  """Adds the parallel-jaw hand at grasp-frame ``pose`` (4, 4; x approach, y jaw axis) with jaws open at
+  ``width`` (m) and one position actuator per pad (command: closing stroke in metres, 0 = open)."""
+  hand = _hand(spec, pose, tool)
+  length, thick, across = gripper.finger_length, gripper.finger_thickness, gripper.finger_width
+  x_pad = gripper.tip_depth - 0.5 * length
+  x_palm = gripper.tip_depth - length - 0.5 * gripper.palm_depth
+  _box(hand, PALM, [x_palm, 0.0, 0.0], [0.5 * gripper.palm_depth, 0.5 * gripper.palm_width,
+                                         0.5 * gripper.palm_height], tool.hand_mass)
+  stroke = 0.5 * width + tool.close_overtravel
+  for name, side in zip(FINGERS, (1.0, -1.0)):
+    pad = hand.add_body(name=name, pos=[x_pad, side * (0.5 * width + 0.5 * max(thick, 1e-3)), 0.0], gravcomp=1.0)
+    pad.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0.0, -side, 0.0], range=[-0.001, stroke],
+                  damping=tool.finger_damping)
+    _box(pad, name, [0.0, 0.0, 0.0], [0.5 * length, 0.5 * max(thick, 1e-3), 0.5 * across], tool.finger_mass)
+    spec.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT,
+                      gaintype=mujoco.mjtGain.mjGAIN_FIXED, gainprm=[tool.finger_gain] + [0.0] * 9,
+                      biastype=mujoco.mjtBias.mjBIAS_AFFINE, biasprm=[0.0, -tool.finger_gain, 0.0] + [0.0] * 7,
+                      ctrlrange=[0.0, stroke], ctrllimited=1,
+                      forcerange=[-float(gripper.force_limit), float(gripper.force_limit)], forcelimited=1)
+
+
+def add_suction_cup(spec: mujoco.MjSpec, pose: np.ndarray, gripper: SuctionGripper,
+                    geometry: GripperGeometry = GripperGeometry(), tool: ToolSettings = ToolSettings()) -> None:
+  """Adds the suction tool at grasp-frame ``pose`` (4, 4; x approach, origin at the cup's mouth); see
+  `add_vacuum` for its hold."""
+  hand = _hand(spec, pose, tool)
+  h, r = gripper.cone_height, gripper.cup_radius
+  hand.add_geom(name=CUP, type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[-0.5 * h, 0.0, 0.0], quat=_Z_TO_X,
+                size=[r, 0.5 * h, 0.0], mass=0.5 * tool.hand_mass, contype=_GRIPPER_GROUP, conaffinity=0)
+  hand.add_geom(name=SHAFT, type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[-h - 0.5 * geometry.shaft_length, 0.0, 0.0],
+                quat=_Z_TO_X, size=[geometry.shaft_radius, 0.5 * geometry.shaft_length, 0.0],
+                mass=0.5 * tool.hand_mass, contype=_GRIPPER_GROUP, conaffinity=0)
+
+
+def add_gripper_pairs(spec: mujoco.MjSpec, gripper_geoms: Sequence[str], object_geoms: Sequence[tuple[str, float]],
+                      bin_geoms: Sequence[str], finger_torsion: float, tool: ToolSettings = ToolSettings()) -> None:
+  """Explicit contact pairs of every gripper geom with every object hull (name, Coulomb friction) and bin geom.
+
+  ``finger_torsion`` (m per unit friction) gives jaw pads the soft-finger torsional friction ``finger_torsion *
+  mu`` (condim 4); the palm, cup and shaft get sliding friction only (condim 3).
+  """
+  solref = [tool.contact_timeconst, 1.0]
+  for g in gripper_geoms:
+    pad = g in FINGERS
+    for name, mu in object_geoms:
+      spec.add_pair(geomname1=g, geomname2=name, condim=4 if pad else 3, solref=solref,
+                    friction=[mu, mu, finger_torsion * mu if pad else 0.0, 0.0, 0.0])
+    for name in bin_geoms:
+      spec.add_pair(geomname1=g, geomname2=name, condim=3, solref=solref,
+                    friction=[tool.bin_friction, tool.bin_friction, 0.0, 0.0, 0.0])
+
+
+def add_vacuum(spec: mujoco.MjSpec, object_bodies: Sequence[str], tool: ToolSettings = ToolSettings()) -> None:
+  """One inactive weld ``vacuum_<body>`` between the hand and each of ``object_bodies``: the vacuum hold, activated
+  (with the relative pose of the moment) for the object a seal forms on."""
+  for body in object_bodies:
+    weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, name=f'{VACUUM}_{body}', name1=HAND, name2=body,
+                             objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
+    weld.data = [0.0] * 10 + [1.0, 0.0]
+    weld.solref = [tool.weld_timeconst, 1.0]
+
+
+__all__ = ['CUP', 'FINGERS', 'HAND', 'PALM', 'SHAFT', 'TARGET', 'ToolSettings', 'VACUUM', 'add_gripper_pairs',
+           'add_parallel_jaw', 'add_suction_cup', 'add_vacuum']
