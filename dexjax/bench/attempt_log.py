@@ -1,13 +1,15 @@
 """The benchmark's per-attempt log, ``attempts.jsonl``: one JSON object per line, appended as each attempt ends.
 
-Each record is written with a single ``write`` on a file opened for appending and then flushed to disk
-(``fsync``), so a killed run leaves whole records and at most one torn last line, without its newline.
+Each record is written with a single ``write`` on a file opened for appending, under an exclusive lock
+(``flock``: several processes may append to one log), and then flushed to disk (``fsync``), so a killed run
+leaves whole records and at most one torn last line, without its newline.
 `read_attempts` drops that line (and, with ``repair``, cuts it from the file so the next append starts on a fresh
 line); a damaged whole line is an error naming the file and line, never silently skipped.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 from collections.abc import Mapping
@@ -26,6 +28,7 @@ def append_attempt(path: str | os.PathLike[str], record: Mapping[str, Any]) -> N
   line = (json.dumps(plain_json(record, nan_to_none=True), sort_keys=True, allow_nan=False) + '\n').encode('utf-8')
   fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
   try:
+    fcntl.flock(fd, fcntl.LOCK_EX)
     written = os.write(fd, line)
     if written != len(line):
       raise OSError(f'{path}: wrote {written} of {len(line)} bytes of an attempt record')
