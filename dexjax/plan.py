@@ -28,7 +28,6 @@ grasp and the policy's samples per round. When no grasp is found, plan.json has 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import os
@@ -171,34 +170,6 @@ def _samples_numpy(action, names: list[str]) -> dict | None:
   return out
 
 
-@contextlib.contextmanager
-def _persistent_compilation_cache():
-  """Keeps compiled plans in ``$DEXJAX_CACHE/jax`` (JAX's persistent cache) while the plan compiles, so a rerun on
-  an image of the same size with a model of the same architecture skips most of the compilation. Scoped: JAX's
-  previous cache settings are restored afterwards, so a program (or test session) that calls `main` does not go on
-  writing every later compilation there. Best effort: an unwritable cache only costs the time."""
-  import jax  # pylint: disable=g-import-not-at-top
-  from jax.experimental.compilation_cache import compilation_cache  # pylint: disable=g-import-not-at-top
-  from dexjax.geometry.cache import default_cache_dir  # pylint: disable=g-import-not-at-top
-  names = ('jax_compilation_cache_dir', 'jax_persistent_cache_min_compile_time_secs')
-  before = {name: getattr(jax.config, name) for name in names}
-  try:
-    directory = Path(default_cache_dir()) / 'jax'
-    directory.mkdir(parents=True, exist_ok=True)
-  except OSError:
-    yield
-    return
-  compilation_cache.reset_cache()
-  jax.config.update(names[0], os.fspath(directory))
-  jax.config.update(names[1], 1.0)
-  try:
-    yield
-  finally:
-    for name, value in before.items():
-      jax.config.update(name, value)
-    compilation_cache.reset_cache()
-
-
 @command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
@@ -226,7 +197,8 @@ def main(argv: list[str] | None = None) -> int:
   names = [g for g in GRIPPERS if g in {p.gripper for p in policy.policies}]  # the order of the samples
   key = jax.random.key(args.seed)
   start = time.perf_counter()
-  with _persistent_compilation_cache():
+  from dexjax.compile_cache import persistent_compilation_cache  # pylint: disable=g-import-not-at-top
+  with persistent_compilation_cache():
     compiled = jax.jit(plan_grasp, static_argnames='samples').lower(key, observation, policy,
                                                                     samples=bool(args.png)).compile()
   compile_s = time.perf_counter() - start

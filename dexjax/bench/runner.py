@@ -125,13 +125,15 @@ def _worker_state(spec: BenchmarkSpec, cache_dir: str | None) -> dict[str, Any]:
 def _trial_task(spec: BenchmarkSpec, log_path: str, cache_dir: str | None, append: bool, index: int) -> dict:
   """Runs (or resumes) the trial of task ``index``; returns its records when the driver appends them."""
   from dexjax.bench.trial import run_trial  # pylint: disable=g-import-not-at-top
-  state = _worker_state(spec, cache_dir)
+  from dexjax.compile_cache import persistent_compilation_cache  # pylint: disable=g-import-not-at-top
   policy, trial = pairs(spec)[index]
   logged = [r for r in read_attempts(log_path) if r['policy'] == policy and r['trial'] == trial]
   logged.sort(key=lambda r: r['attempt'])
-  records = run_trial(state['world'], state['planners'][policy], state['judges'], policy=policy, trial=trial,
-                      seed=spec.seed, advance_by=spec.judge, protocol=spec.protocol, motion=spec.motion,
-                      log_path=log_path if append else None, logged=logged)
+  with persistent_compilation_cache():
+    state = _worker_state(spec, cache_dir)
+    records = run_trial(state['world'], state['planners'][policy], state['judges'], policy=policy, trial=trial,
+                        seed=spec.seed, advance_by=spec.judge, protocol=spec.protocol, motion=spec.motion,
+                        log_path=log_path if append else None, logged=logged)
   return {'records': [] if append else records[len(logged):], 'attempts': len(records)}
 
 

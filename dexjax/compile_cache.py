@@ -1,0 +1,40 @@
+"""JAX's persistent compilation cache under dexjax's cache directory, for the commands that compile large programs
+(`python -m dexjax.plan`, the benchmark's workers)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+
+@contextlib.contextmanager
+def persistent_compilation_cache():
+  """Keeps what is compiled inside the block in ``$DEXJAX_CACHE/jax`` (JAX's persistent cache; compilations over
+  1 s), so a rerun (e.g. a plan on an image of the same size with a network of the same architecture, or a
+  benchmark worker's planners and judges) skips most of the compilation. Scoped: JAX's previous cache settings are
+  restored afterwards, so a program (or test session) that enters it does not go on writing every later
+  compilation there. Best effort: an unwritable cache only costs the time."""
+  import jax  # pylint: disable=g-import-not-at-top
+  from jax.experimental.compilation_cache import compilation_cache  # pylint: disable=g-import-not-at-top
+  from dexjax.geometry.cache import default_cache_dir  # pylint: disable=g-import-not-at-top
+  names = ('jax_compilation_cache_dir', 'jax_persistent_cache_min_compile_time_secs')
+  before = {name: getattr(jax.config, name) for name in names}
+  try:
+    directory = Path(default_cache_dir()) / 'jax'
+    directory.mkdir(parents=True, exist_ok=True)
+  except OSError:
+    yield
+    return
+  compilation_cache.reset_cache()
+  jax.config.update(names[0], os.fspath(directory))
+  jax.config.update(names[1], 1.0)
+  try:
+    yield
+  finally:
+    for name, value in before.items():
+      jax.config.update(name, value)
+    compilation_cache.reset_cache()
+
+
+__all__ = ['persistent_compilation_cache']

@@ -1,0 +1,101 @@
+"""``python -m dexjax.benchmark``: a small physics-judged run end to end (results, figures, both judges), bad
+input, and a run killed with SIGKILL that resumes to the same results."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from dexjax.bench.attempt_log import read_attempts
+from dexjax.benchmark import main
+
+OBJECTS = ['builtin:cube', 'builtin:box', 'builtin:cylinder']
+ARGS = ['--policy', 'suction_heuristic', '--policy', 'random', '--objects', *OBJECTS, '--per-trial', '2',
+        '--trials', '2', '--max-attempts', '4', '--max-failures', '3', '--no-figures']
+TIMING = ('plan_seconds', 'mpph', 'seconds_per_attempt')
+
+
+def _strip(value):
+  """results.json without the measured planning times (and what derives from them)."""
+  if isinstance(value, dict):
+    return {k: _strip(v) for k, v in value.items() if k not in TIMING}
+  if isinstance(value, list):
+    return [_strip(v) for v in value]
+  return value
+
+
+@pytest.fixture(scope='module')
+def reference(tmp_path_factory):
+  """One uninterrupted run in this process (serial)."""
+  out = tmp_path_factory.mktemp('bench') / 'reference'
+  assert main([*ARGS, '--out', str(out)]) == 0
+  return out
+
+
+def test_a_run_writes_results_log_and_both_verdicts(reference, tmp_path, capsys):
+  results = json.loads((reference / 'results.json').read_text())
+  records = read_attempts(reference / 'attempts.jsonl')
+  assert set(results['policies']) == {'suction_heuristic', 'random'}
+  for name, entry in results['policies'].items():
+    rows = [r for r in records if r['policy'] == name]
+    assert entry['attempts'] == len(rows) and entry['successes'] == sum(r['success'] for r in rows)
+    assert entry['trials_finished'] == 2 and sum(entry['trial_ends'].values()) == 2
+    assert 0.0 <= entry['judge_agreement'] <= 1.0 and entry['judged_by_both'] == len(rows)
+    assert entry['mpph'] >= 0.0 and set(entry['per_level']) == {'None'}  # builtin objects have no level
+  for r in records:  # every attempt judged twice; the physics verdict advanced the trial
+    assert set(r['verdicts']) == {'analytic', 'physics'} and r['judge'] == 'physics'
+    assert r['success'] == r['physics'] and r['analytic'] == r['verdicts']['analytic']['success']
+    assert r['stop'] is None or r['stop'] in ('empty', 'max_attempts', 'consecutive_failures')
+  assert results['config']['policies'] == ['suction_heuristic', 'random']
+  assert results['config']['objects'] == OBJECTS and results['failed_trials'] == {}
+  # Figures from the same results.
+  from dexjax.bench.figures import save_figures
+  assert save_figures(results, tmp_path) == ['reliability.png', 'per_object.png', 'difficulty.png']
+  assert all((tmp_path / n).stat().st_size > 1000 for n in ('reliability.png', 'per_object.png', 'difficulty.png'))
+  # A finished run reruns as a no-op with the same results; other settings in the same directory are refused.
+  assert main([*ARGS, '--out', str(reference)]) == 0
+  assert _strip(json.loads((reference / 'results.json').read_text())) == _strip(results)
+  capsys.readouterr()
+  assert main([*ARGS[:-1], '--judge', 'analytic', '--no-figures', '--out', str(reference)]) == 2
+  assert 'holds a benchmark run with other settings (judge)' in capsys.readouterr().err
+
+
+def test_bad_input_is_one_error_line(tmp_path, capsys):
+  assert main(['--policy', 'random', '--objects', 'builtin:cube', '--per-trial', '2', '--out', str(tmp_path)]) == 2
+  assert 'objects per trial (--per-trial): expected at most 1' in capsys.readouterr().err
+  assert main(['--policy', 'random', '--objects', 'procedural:L1/5:2', '--out', str(tmp_path)]) == 2
+  assert "object source 'procedural:L1/5:2'" in capsys.readouterr().err
+  assert main(['--policy', 'random', '--policy', 'random', '--objects', 'builtin:cube', '--out', str(tmp_path)]) == 2
+  assert '--policy: each policy once' in capsys.readouterr().err
+  (tmp_path / 'file').write_text('x')
+  assert main(['--policy', 'random', '--objects', 'builtin:cube', '--out', str(tmp_path / 'file')]) == 2
+  assert 'exists and is not a directory' in capsys.readouterr().err
+
+
+def test_a_run_killed_with_sigkill_resumes_to_the_same_results(reference, tmp_path):
+  out = tmp_path / 'killed'
+  argv = [sys.executable, '-m', 'dexjax.benchmark', *ARGS, '--workers', '2', '--out', str(out)]
+  process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+  deadline = time.time() + 600
+  while time.time() < deadline and process.poll() is None:
+    if len(read_attempts(out / 'attempts.jsonl')) >= 3:
+      break
+    time.sleep(0.05)
+  os.kill(process.pid, signal.SIGKILL)  # its workers die with it (dexjax.generate.die_with_parent)
+  process.wait()
+  done = read_attempts(out / 'attempts.jsonl')
+  total = len(read_attempts(reference / 'attempts.jsonl'))
+  assert 3 <= len(done) < total and not (out / 'results.json').exists()
+  assert subprocess.run(argv, stdout=subprocess.DEVNULL, timeout=900).returncode == 0
+  assert _strip(json.loads((out / 'results.json').read_text())) == _strip(
+      json.loads((reference / 'results.json').read_text()))
+  key = lambda r: (r['policy'], r['trial'], r['attempt'])
+  resumed = sorted(read_attempts(out / 'attempts.jsonl'), key=key)
+  assert [_strip(r) for r in resumed] == [_strip(r) for r in sorted(read_attempts(reference / 'attempts.jsonl'),
+                                                                      key=key)]
