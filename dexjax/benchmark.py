@@ -30,11 +30,6 @@ import sys
 
 from dexjax.cli import FAILURE_EXIT, OK_EXIT, check_output_dir, command
 
-#: Sensor noise of the benchmark's depth images unless a --config sets its own: correlated per-pixel noise of 1 mm
-#: (a structured-light industrial sensor such as the seed's Photoneo PhoXi; gqcnn's 5 mm is a training augmentation)
-#: and 1 % of pixels dropped (inpainted by the policies, as a real cell's holes).
-BENCHMARK_NOISE_SETTINGS = {'use_gp': True, 'gp_sigma': 0.001, 'use_dropout': True, 'dropout_rate': 0.01}
-
 _POLICIES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 'suction_heuristic',
              'composite_heuristic')
 
@@ -108,15 +103,15 @@ def main(argv: list[str] | None = None) -> int:
   from dexjax.bench.runner import BenchmarkSpec, run_benchmark  # pylint: disable=g-import-not-at-top
   from dexjax.config import load_yaml, validate_generate_config  # pylint: disable=g-import-not-at-top
   from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top
+  from dexjax.bench.runner import benchmark_noise  # pylint: disable=g-import-not-at-top
   from dexjax.render.noise import SensorNoise  # pylint: disable=g-import-not-at-top
-  BENCHMARK_NOISE = SensorNoise(**BENCHMARK_NOISE_SETTINGS)  # pylint: disable=invalid-name
   config = load_generate_config(args.config, camera_config=args.camera_config, objects=args.objects)
   validate_generate_config(config, args.config or 'the default config')
   configured_noise = args.config is not None and 'noise' in (load_yaml(args.config) or {})
   if args.no_noise:
     config = dataclasses.replace(config, noise=SensorNoise())
   elif not configured_noise:
-    config = dataclasses.replace(config, noise=BENCHMARK_NOISE)
+    config = dataclasses.replace(config, noise=benchmark_noise())
   spec = BenchmarkSpec(policies=tuple(args.policy), config=config,
                        protocol=Protocol(objects_per_trial=args.per_trial, trials=args.trials,
                                          max_attempts=args.max_attempts, max_consecutive_failures=args.max_failures),

@@ -18,7 +18,7 @@ from dexjax.benchmark import main
 OBJECTS = ['builtin:cube', 'builtin:box', 'builtin:cylinder']
 ARGS = ['--policy', 'suction_heuristic', '--policy', 'random', '--objects', *OBJECTS, '--per-trial', '2',
         '--trials', '2', '--max-attempts', '4', '--max-failures', '3', '--no-figures']
-TIMING = ('plan_seconds', 'mpph', 'seconds_per_attempt')
+TIMING = ('plan_seconds', 'mpph', 'seconds_per_attempt', 'stage_seconds')
 
 
 def _strip(value):

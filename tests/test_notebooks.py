@@ -114,3 +114,22 @@ def test_analysis_notebook_runs(cache_dir, monkeypatch):
     assert all(0.0 <= r["separation"] <= 1.0 and r["embedding"].shape == (150, 2) for r in result.values())
     assert result["output"]["separation"] > 0.6, gripper  # the logits separate what the network predicts well
   assert set(scope["verdict"]) == {"parallel_jaw", "suction"}
+
+
+def test_benchmark_notebook_runs(cache_dir, monkeypatch):
+  """A tiny benchmark: both judges on every attempt, the table, the figures and the judges' confusion counts."""
+  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
+  matplotlib.use("Agg")
+  src = _code(NOTEBOOKS / "benchmark.ipynb")
+  small = {"PER_TRIAL = 6": "PER_TRIAL = 2", "TRIALS = 2": "TRIALS = 1", "MAX_ATTEMPTS = 12": "MAX_ATTEMPTS = 3",
+           'POLICIES = ["ambidextrous", "suction_heuristic", "random"]': 'POLICIES = ["ambidextrous", "random"]'}
+  for full, reduced in small.items():
+    assert full in src
+    src = src.replace(full, reduced)
+  scope: dict = {}
+  exec(compile(src, "benchmark.ipynb", "exec"), scope)
+  results, records = scope["results"], scope["records"]
+  assert set(results["policies"]) == {"ambidextrous", "random"}
+  assert sum(scope["confusion"].values()) == len(records) == sum(e["attempts"] for e in results["policies"].values())
+  assert set(scope["figures"]) == {"reliability.png", "per_object.png", "difficulty.png"}
+  assert all(r["verdicts"].keys() == {"analytic", "physics"} for r in records)

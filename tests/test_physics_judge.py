@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from dexjax.bench.physics_judge import execute_grasp, ring_violation
+from dexjax.bench.execution import execute_grasp, ring_violation
 from dexjax.bench.picking_metrics import MotionModel, move_seconds
 from dexjax.bench.tool_path import PHASES, PathSettings, tool_path, trapezoid_fraction
 from dexjax.geometry import build_object_model

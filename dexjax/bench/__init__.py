@@ -5,9 +5,9 @@ benchmark runner and its CLI (`python -m dexjax.benchmark`) build on these."""
 
 from dexjax.bench.analytic_judge import analytic_verdict, world_grasp
 from dexjax.bench.attempt_log import AttemptLogError, append_attempt, read_attempts
+from dexjax.bench.execution import (PHYSICS_FAILURES, RING_LIMITS, PhysicsOutcome, PhysicsSettings, execute_grasp,
+                                    ring_violation)
 from dexjax.bench.judges import Judge, Verdict, analytic_judge, physics_judge
-from dexjax.bench.physics_judge import (PHYSICS_FAILURES, RING_LIMITS, PhysicsOutcome, PhysicsSettings, execute_grasp,
-                                        ring_violation)
 from dexjax.bench.picking_metrics import (Z_95, MotionModel, move_seconds, object_difficulty, reliability, sem_interval,
                                           summarize, wilson_interval)
 from dexjax.bench.protocol import STOP_REASONS, Protocol, stop_reason

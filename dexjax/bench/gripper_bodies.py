@@ -11,7 +11,7 @@ mouth):
   open at the grasp's width and a command of 1 drives them ``close_overtravel`` past the centre, so a pad that
   meets an object presses with exactly the force limit;
 * **suction**: the cup (a cylinder of the cup's radius and cone height) and the tool shaft behind it; the seal and
-  the vacuum hold are the judge's (`dexjax.bench.physics_judge`): one weld ``vacuum_<body>`` between the hand and
+  the vacuum hold are the judge's (`dexjax.bench.execution`): one weld ``vacuum_<body>`` between the hand and
   each object, inactive until a seal forms on that object.
 
 Gripper geoms never collide through MuJoCo's dynamic pairs (contype 2, conaffinity 0); every contact they can make

@@ -19,7 +19,7 @@ from typing import Any
 import jax
 
 from dexjax.bench.analytic_judge import analytic_verdict, world_grasp
-from dexjax.bench.physics_judge import PhysicsSettings, execute_grasp
+from dexjax.bench.execution import PhysicsSettings, execute_grasp
 from dexjax.bench.world import BinState, PickingWorld
 from dexjax.policy.actions import GraspAction
 from dexjax.quality.heap_reward import REWARD_FAILURES

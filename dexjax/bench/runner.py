@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from dexjax.bench.attempt_log import append_attempt, read_attempts
+from dexjax.bench.execution import PhysicsSettings
 from dexjax.bench.judges import analytic_judge, physics_judge
-from dexjax.bench.physics_judge import PhysicsSettings
 from dexjax.bench.picking_metrics import MotionModel, object_difficulty, summarize
 from dexjax.bench.protocol import Protocol
 from dexjax.config import plain_json
@@ -33,6 +33,11 @@ from dexjax.generate.config import GenerateConfig
 from dexjax.policy.presets import POLICY_NAMES
 
 JUDGES = ('physics', 'analytic')
+
+#: Sensor noise of the benchmark's depth images (unless a config sets its own): correlated per-pixel noise of 1 mm
+#: (a structured-light industrial sensor such as the seed's Photoneo PhoXi; gqcnn's 5 mm is a training
+#: augmentation) and 1 % of pixels dropped (holes, inpainted by the policies as a real cell's).
+BENCHMARK_NOISE_SETTINGS = {'use_gp': True, 'gp_sigma': 0.001, 'use_dropout': True, 'dropout_rate': 0.01}
 SETTINGS_FILE, LOG_FILE, RESULTS_FILE = 'benchmark.json', 'attempts.jsonl', 'results.json'
 
 
@@ -88,6 +93,22 @@ class BenchmarkSpec:
             'protocol': dataclasses.asdict(self.protocol), 'judge': self.judge, 'model': model, 'cem': self.cem,
             'seed': self.seed, 'known_mass': self.known_mass, 'physics': plain_json(dataclasses.asdict(self.physics)),
             'motion': dataclasses.asdict(self.motion), 'config_fingerprint': digest}
+
+
+def benchmark_noise() -> Any:
+  """The benchmark's default `SensorNoise` (`BENCHMARK_NOISE_SETTINGS`)."""
+  from dexjax.render.noise import SensorNoise  # pylint: disable=g-import-not-at-top
+  return SensorNoise(**BENCHMARK_NOISE_SETTINGS)
+
+
+def benchmark_config(objects: list[str] | tuple[str, ...], config: GenerateConfig | None = None,
+                     noise: bool = True) -> GenerateConfig:
+  """``config`` (default: Dex-Net 4.0's `GenerateConfig`) with the benchmark's ``objects`` and, with ``noise``,
+  the benchmark's sensor noise (`benchmark_noise`); without, noise-free images."""
+  from dexjax.render.noise import SensorNoise  # pylint: disable=g-import-not-at-top
+  config = GenerateConfig() if config is None else config
+  return dataclasses.replace(config, objects=dataclasses.replace(config.objects, sources=tuple(objects)),
+                             noise=benchmark_noise() if noise else SensorNoise())
 
 
 def pairs(spec: BenchmarkSpec) -> list[tuple[str, int]]:
@@ -221,7 +242,9 @@ def run_benchmark(spec: BenchmarkSpec, out_dir: str | os.PathLike[str], *, worke
 
 
 def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: dict[str, Any]) -> dict[str, Any]:
-  """results.json's content: per-policy metrics (`summarize`), object difficulty, trial ends and the settings."""
+  """results.json's content: per-policy metrics (`summarize`) with the mean seconds per attempt of each stage
+  (render, plan, each judge, settle), how trials ended and each judge's failure reasons; object difficulty; the
+  settings."""
   policies = summarize(records)
   ends: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
   for r in records:
@@ -232,13 +255,18 @@ def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: 
     for judge, verdict in r['verdicts'].items():
       table = reasons.setdefault(r['policy'], {}).setdefault(judge, {})
       table[verdict['reason']] = table.get(verdict['reason'], 0) + 1
+  stages: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+  for r in records:
+    for stage, seconds in r.get('stage_seconds', {}).items():
+      stages[r['policy']][stage].append(float(seconds))
   for name, entry in policies.items():
+    entry['stage_seconds'] = {k: sum(v) / len(v) for k, v in sorted(stages[name].items())}
     entry['trial_ends'] = dict(ends[name])
     entry['failure_reasons'] = reasons.get(name, {})
     entry['trials_finished'] = sum(ends[name].values())
   return {'policies': policies, 'object_difficulty': object_difficulty(policies), 'config': settings}
 
 
-__all__ = ['BenchmarkSpec', 'JUDGES', 'LOG_FILE', 'RESULTS_FILE', 'SETTINGS_FILE', 'check_objects', 'pairs',
+__all__ = ['BENCHMARK_NOISE_SETTINGS', 'BenchmarkSpec', 'JUDGES', 'benchmark_config', 'benchmark_noise', 'LOG_FILE', 'RESULTS_FILE', 'SETTINGS_FILE', 'check_objects', 'pairs',
            'run_benchmark',
            'summarize_run', 'unfinished']

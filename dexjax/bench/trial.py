@@ -115,21 +115,27 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
   attempt = len(records)
   while stop_reason(state.count, attempt, failures, protocol) is None:
     k_noise, k_plan, k_judge = _attempt_keys(key, attempt)
+    clock = time.perf_counter()
     depth, segmentation = world.observe(k_noise, state, camera)
+    stages = {'render': time.perf_counter() - clock}
     action, plan_seconds = _plan(planner, k_plan, depth, camera, background)
+    stages['plan'] = plan_seconds
     verdicts: dict[str, Verdict] = {}
     after: BinState | None = None
     for name, judge in judges.items():
       if action is None:
         verdicts[name] = Verdict(success=False, target_slot=-1, reason=NO_GRASP)
         continue
+      clock = time.perf_counter()
       verdict, disturbed = judge(jax.random.fold_in(k_judge, len(verdicts)), action, camera, state)
+      stages[f'judge_{name}'] = time.perf_counter() - clock
       verdicts[name] = verdict
       if name == advance_by:
         after = disturbed
     chosen = verdicts[advance_by]
     aimed = chosen.target_slot if chosen.target_slot >= 0 else (_aimed_slot(action, segmentation) if action else -1)
     object_id = int(state.object_ids[aimed]) if aimed >= 0 else -1
+    clock = time.perf_counter()
     if chosen.success:
       base = after if after is not None else state
       state = world.remove(base, chosen.target_slot) if base.mask[chosen.target_slot] else world.settle_again(base)
@@ -137,6 +143,7 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
     else:
       state = world.settle_again(after) if after is not None else state
       failures += 1
+    stages['settle'] = time.perf_counter() - clock
     attempt += 1
     stop = stop_reason(state.count, attempt, failures, protocol)
     record = {'policy': policy, 'trial': trial, 'attempt': attempt - 1, **_action_fields(action),
@@ -145,7 +152,7 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
                            for n, v in verdicts.items()},
               'object': world.names[object_id] if object_id >= 0 else None,
               'level': world.levels[object_id] if object_id >= 0 else None,
-              'plan_seconds': plan_seconds, 'motion_seconds': motion.attempt_seconds(),
+              'plan_seconds': plan_seconds, 'motion_seconds': motion.attempt_seconds(), 'stage_seconds': stages,
               'objects_left': state.count, 'consecutive_failures': failures, 'stop': stop,
               'state': state.to_json()}
     for name in ('analytic', 'physics'):

@@ -4,9 +4,9 @@ The heap's MuJoCo model (`dexjax.sim.heap_spec`: the bin and every object as a f
 heap's own contact settings) gets the gripper (`dexjax.bench.gripper_bodies`), and the tool follows the pick's path
 (`dexjax.bench.tool_path`): from a pre-grasp pose ``standoff`` behind the grasp along the approach (further back, in
 5 cm steps, while the tool would start inside an object), to the grasp, grip, lift 0.2 m, transport to above the
-bin's centre, shake, hold. The approach is force-guarded, as a real cell's: it stops where the gripper's contact
-force on the objects first exceeds ``guard_force`` (a suction approach may go on ``press_depth`` past the planned
-point, to press the compliant cup onto the surface). Collisions with other objects and the bin are real: objects
+bin's centre, shake, hold. The approach is force-guarded, as a real cell's: it stops where the contact force
+pushing the gripper back (objects or bin) first exceeds ``guard_force`` (a suction approach may go on
+``press_depth`` past the planned point, to press the compliant cup onto the surface). Collisions with other objects and the bin are real: objects
 are pushed, and a gripper pressing on the bin harder than ``bin_force_limit`` during the approach or the grip
 fails the attempt (``collision_bin``: a real robot would stop).
 
@@ -67,9 +67,12 @@ class PhysicsSettings:
     impratio: frictional-to-normal constraint impedance ratio (elliptic cones).
     standoff: distance of the pre-grasp pose behind the grasp along the approach, m (the analytic reward's sweep).
     max_standoff: the tool starts at most this far back when the pre-grasp pose is inside an object, m.
-    guard_force: the approach stops once the gripper's contact force on objects exceeds this, N.
+    guard_force: the approach stops once contacts push the gripper back along the approach with this force, N.
+    guard_retract: when the guard stops the approach, the tool backs off this much along it, m.
     press_depth: the suction approach may go on this far past the planned point, m.
-    bin_force_limit: contact force of the gripper on the bin (floor or walls) that fails the attempt, N.
+    bin_force_limit: contact force of the gripper on the bin (floor or walls) that fails the attempt, N (a
+      fingertip may touch the floor: the analytic reward allows 1 mm; a robot's collision detection stops it
+      at a few tens of newtons).
     min_lift: an object counts as lifted when its centre of mass ends this much higher than it started, m.
     seal_break_steps: consecutive steps over a suction-ring limit that break the seal.
     path: the tool's motions (`PathSettings`).
@@ -83,8 +86,9 @@ class PhysicsSettings:
   standoff: float = 0.05
   max_standoff: float = 0.3
   guard_force: float = 10.0
+  guard_retract: float = 0.001
   press_depth: float = 0.005
-  bin_force_limit: float = 20.0
+  bin_force_limit: float = 50.0
   min_lift: float = 0.1
   seal_break_steps: int = 5
   path: PathSettings = PathSettings()
@@ -193,13 +197,13 @@ class _Sim:
     return mine[keep], other[keep], force[keep]
 
   def pushback(self, approach: np.ndarray) -> float:
-    """Force (N) with which the objects push the tool back along ``approach`` (normal forces only)."""
+    """Force (N) with which objects and the bin push the tool back along ``approach`` (normal forces only): what
+    a wrist force sensor would feel."""
     d = self.data
     n = d.ncon
     g = d.contact.geom[:n]
     tool = np.isin(g, self.tool_geoms)
-    obj = self.geom_slot[g] >= 0
-    keep = ((tool[:, 0] & obj[:, 1]) | (tool[:, 1] & obj[:, 0])) & (d.contact.efc_address[:n] >= 0)
+    keep = (tool[:, 0] ^ tool[:, 1]) & (d.contact.efc_address[:n] >= 0)
     normal = d.contact.frame[:n, :3][keep]
     force = d.efc_force[d.contact.efc_address[:n][keep]]
     return float(np.sum(force * np.abs(normal @ approach)))
@@ -350,7 +354,9 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
   for i in range(len(path.positions)):
     phase = int(path.phase[i])
     if guarded is None and phase <= 1 and sim.pushback(approach) > settings.guard_force:
-      guarded = d.xpos[sim.hand].copy()  # the approach stops where the tool is; the rest of the path starts here
+      # The approach stops where the tool is, backed off by ``guard_retract`` (the force sensor's reaction); the
+      # rest of the path starts there.
+      guarded = d.xpos[sim.hand] - settings.guard_retract * approach
     if guarded is None:
       d.mocap_pos[0] = path.positions[i]
     else:
