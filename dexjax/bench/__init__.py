@@ -1,7 +1,7 @@
 """The Universal Picking benchmark in simulation (seed, "Characterization of Grasping Benchmark"), judged by the
 analytic reward and by MuJoCo physics: the simulated bin (`PickingWorld`), the judges (`analytic_judge`,
-`physics_judge`), one trial with the seed's stopping rules (`run_trial`), the metrics, and the attempt log. The
-benchmark runner and its CLI (`python -m dexjax.benchmark`) build on these."""
+`physics_judge`), one trial with the seed's stopping rules (`run_trial`), the metrics, the attempt log, and the
+runner of whole benchmarks (`run_benchmark`, the engine of ``python -m dexjax.benchmark``); docs/benchmark.md."""
 
 from dexjax.bench.analytic_judge import analytic_verdict, world_grasp
 from dexjax.bench.attempt_log import AttemptLogError, append_attempt, read_attempts
@@ -11,6 +11,7 @@ from dexjax.bench.judges import Judge, Verdict, analytic_judge, physics_judge
 from dexjax.bench.picking_metrics import (Z_95, MotionModel, move_seconds, object_difficulty, reliability, sem_interval,
                                           summarize, wilson_interval)
 from dexjax.bench.protocol import STOP_REASONS, Protocol, stop_reason
+from dexjax.bench.runner import BenchmarkSpec, benchmark_config, run_benchmark, summarize_run
 from dexjax.bench.tool_path import PHASES, PathSettings, ToolPath, tool_path
 from dexjax.bench.trial import NO_GRASP, Planner, run_trial, trial_key
 from dexjax.bench.world import BinState, PickingWorld, object_level
@@ -21,6 +22,7 @@ __all__ = [
     'Judge', 'Verdict', 'analytic_judge', 'analytic_verdict', 'physics_judge', 'world_grasp',
     'PHYSICS_FAILURES', 'RING_LIMITS', 'PhysicsOutcome', 'PhysicsSettings', 'execute_grasp', 'ring_violation',
     'PHASES', 'PathSettings', 'ToolPath', 'tool_path',
+    'BenchmarkSpec', 'benchmark_config', 'run_benchmark', 'summarize_run',
     'AttemptLogError', 'MotionModel', 'Z_95', 'append_attempt', 'move_seconds', 'object_difficulty', 'read_attempts',
     'reliability', 'sem_interval', 'summarize', 'wilson_interval',
 ]

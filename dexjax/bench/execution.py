@@ -13,8 +13,10 @@ fails the attempt (``collision_bin``: a real robot would stop).
 * **Parallel jaw**: the pads close with force-limited servos (the gripper's ``force_limit``); friction is the
   object's Coulomb coefficient with the soft-finger torsional friction (2/3) mu r_f (condim 4).
 * **Suction**: MuJoCo cannot model the compliant lip, so the seal is the analytic one (`dexjax.contacts.
-  suction_seal`, Dex-Net 3.0's spring model) at the actual contact: the object the cup's axis meets (a ray from
-  inside the cup), in its simulated pose, at the cup's simulated pose after the guarded approach. A sealed cup holds
+  suction_seal`, Dex-Net 3.0's spring model) at the actual contact: where the cup's axis meets the first object
+  (a ray from inside the cup; the mouth may have pressed up to the bellows' height into it, or stopped up to the
+  contact tolerance short), in the object's simulated pose, along the cup's simulated axis after the guarded
+  approach. A sealed cup holds
   the object with a weld whose wrench is checked every step against the suction-ring limits of the same contact
   model (spec "Linear constraint set"): the pull at most the vacuum force V, the shear and the torsion within
   friction of the lip load (f_z + V), the bending torque within pi r kappa / sqrt 2. A limit exceeded for
@@ -131,6 +133,7 @@ class _Sim:
                grasp: ParallelJawGrasp | SuctionGrasp, gripper, settings: PhysicsSettings,
                geometry: GripperGeometry):
     self.settings, self.suction = settings, isinstance(grasp, SuctionGrasp)
+    self.contact_point, self.contact_offset = None, np.zeros(3)  # suction: the sealed contact (world, hand frame)
     spec = heap_spec(objects, heap, SettleSettings(timestep=settings.timestep, impratio=settings.impratio,
                                                    solver_iterations=settings.solver_iterations))
     opt = spec.option
@@ -234,8 +237,8 @@ class _Sim:
     return self.data.xpos[self.hand].copy(), self.data.xmat[self.hand].reshape(3, 3).copy()
 
   def ray_slot(self, reach: float) -> tuple[int, float]:
-    """(slot of the object the tool's axis meets first from ``reach`` behind the mouth, distance past the
-    mouth, m); (-1, inf) when it meets no object."""
+    """(slot of the object the tool's axis meets first from ``reach`` behind the mouth, its distance past the
+    mouth (negative: behind it, the bellows compressed), m); (-1, inf) when it meets no object."""
     origin, rot = self.hand_frame()
     geom = np.zeros(1, np.int32)
     dist = mujoco.mj_ray(self.model, self.data, origin - reach * rot[:, 0], rot[:, 0], None, 1, self.hand, geom)
@@ -373,7 +376,9 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
       break
     if sim.suction and weld >= 0 and phase >= 2:
       mouth, rot = sim.hand_frame()
-      broke = ring_violation(sim.weld_wrench(weld, slot, mouth), rot[:, [1, 2, 0]], float(heap.friction[slot]), gripper)
+      contact = mouth + rot @ sim.contact_offset
+      broke = ring_violation(sim.weld_wrench(weld, slot, contact), rot[:, [1, 2, 0]], float(heap.friction[slot]),
+                             gripper)
       violations = violations + 1 if broke else 0
       if violations >= settings.seal_break_steps:
         d.eq_active[weld] = 0
@@ -411,14 +416,16 @@ def _seal_on(sim: _Sim, models: Sequence[ObjectModel], heap: HeapState, gripper:
 
   Returns (failure reason or None, the weld's id or -1, the object's slot or -1).
   """
-  slot, distance = sim.ray_slot(reach=gripper.cone_height)
-  if slot < 0 or abs(distance) > gripper.contact_tolerance:
+  reach = gripper.cone_height + gripper.contact_tolerance
+  slot, distance = sim.ray_slot(reach=reach)
+  if slot < 0 or not -gripper.cone_height <= distance <= gripper.contact_tolerance:
     return 'no_object', -1, slot
   m, d = sim.model, sim.data
   body = m.body(f'obj{slot}').id
   rot, origin = d.xmat[body].reshape(3, 3), d.xpos[body]
   mouth, frame = sim.hand_frame()
-  local = SuctionGrasp(center=np.asarray((mouth - origin) @ rot, np.float32),
+  sim.contact_point = mouth + distance * frame[:, 0]  # where the cup's axis meets the surface
+  local = SuctionGrasp(center=np.asarray((sim.contact_point - origin) @ rot, np.float32),
                        approach=np.asarray(frame[:, 0] @ rot, np.float32))
   seal = jax.device_get(_seal(models[int(heap.object_ids[slot])], local, gripper))
   detail['sealed'], detail['max_strain'] = bool(seal.sealed), float(seal.max_strain)
@@ -431,6 +438,7 @@ def _seal_on(sim: _Sim, models: Sequence[ObjectModel], heap: HeapState, gripper:
   mujoco.mju_mulQuat(rel_quat, _conjugate(d.xquat[sim.hand]), d.xquat[body])
   m.eq_data[eq, 3:6], m.eq_data[eq, 6:10] = rel_pos, rel_quat
   d.eq_active[eq] = 1
+  sim.contact_offset = frame.T @ (sim.contact_point - mouth)  # the contact in the hand's frame (it moves with it)
   return None, eq, slot
 
 

@@ -10,7 +10,8 @@ mouth):
   the jaw axis, driven by a position servo whose force is clipped to the gripper's ``force_limit``; the jaws start
   open at the grasp's width and a command of 1 drives them ``close_overtravel`` past the centre, so a pad that
   meets an object presses with exactly the force limit;
-* **suction**: the cup (a cylinder of the cup's radius and cone height) and the tool shaft behind it; the seal and
+* **suction**: the rigid cup body (a cylinder of the cup's radius) behind the compliant bellows (``cone_height``,
+  no collision solid: the seal model is the lip's physics) and the tool shaft behind it; the seal and
   the vacuum hold are the judge's (`dexjax.bench.execution`): one weld ``vacuum_<body>`` between the hand and
   each object, inactive until a seal forms on that object.
 
@@ -53,6 +54,7 @@ class ToolSettings:
     weld_timeconst: time constant of the hand-to-target and vacuum welds (MuJoCo ``solref[0]``), s.
     contact_timeconst: time constant of gripper contacts, s.
     bin_friction: friction of gripper-bin contacts.
+    cup_body_length: length of the rigid cup body behind the compliant bellows, m.
   """
 
   hand_mass: float = 0.3
@@ -63,6 +65,7 @@ class ToolSettings:
   weld_timeconst: float = 0.01
   contact_timeconst: float = 0.005
   bin_friction: float = 0.5
+  cup_body_length: float = 0.02
 
 
 def _box(body, name: str, centre: Sequence[float], half: Sequence[float], mass: float) -> None:
@@ -113,11 +116,15 @@ def add_suction_cup(spec: mujoco.MjSpec, pose: np.ndarray, gripper: SuctionGripp
   `add_vacuum` for its hold."""
   hand = _hand(spec, pose, tool)
   h, r = gripper.cone_height, gripper.cup_radius
-  hand.add_geom(name=CUP, type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[-0.5 * h, 0.0, 0.0], quat=_Z_TO_X,
-                size=[r, 0.5 * h, 0.0], mass=0.5 * tool.hand_mass, contype=_GRIPPER_GROUP, conaffinity=0)
-  hand.add_geom(name=SHAFT, type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[-h - 0.5 * geometry.shaft_length, 0.0, 0.0],
-                quat=_Z_TO_X, size=[geometry.shaft_radius, 0.5 * geometry.shaft_length, 0.0],
-                mass=0.5 * tool.hand_mass, contype=_GRIPPER_GROUP, conaffinity=0)
+  # The front ``cone_height`` of the cup is the compliant bellows: no collision solid (the seal model decides what
+  # it does); the rigid cup body behind it and the shaft collide.
+  hand.add_geom(name=CUP, type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[-h - 0.5 * tool.cup_body_length, 0.0, 0.0],
+                quat=_Z_TO_X, size=[r, 0.5 * tool.cup_body_length, 0.0], mass=0.5 * tool.hand_mass,
+                contype=_GRIPPER_GROUP, conaffinity=0)
+  hand.add_geom(name=SHAFT, type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+                pos=[-h - tool.cup_body_length - 0.5 * geometry.shaft_length, 0.0, 0.0], quat=_Z_TO_X,
+                size=[geometry.shaft_radius, 0.5 * geometry.shaft_length, 0.0], mass=0.5 * tool.hand_mass,
+                contype=_GRIPPER_GROUP, conaffinity=0)
 
 
 def add_gripper_pairs(spec: mujoco.MjSpec, gripper_geoms: Sequence[str], object_geoms: Sequence[tuple[str, float]],
