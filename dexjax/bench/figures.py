@@ -30,7 +30,7 @@ def plot_reliability(results: Mapping[str, Any], path: str | os.PathLike[str]) -
   """Reliability per policy (bar groups) and level (bars) with 95 % Wilson intervals."""
   policies = results['policies']
   levels = sorted({level for entry in policies.values() for level in entry['per_level']}, key=str)
-  fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(policies) * max(1, len(levels)) / 2, 3.6))
+  fig, ax = plt.subplots(figsize=(max(5.0, 1.2 + 1.7 * len(policies) * max(1.0, len(levels) / 2)), 4.0))
   width = 0.8 / max(1, len(levels))
   for j, level in enumerate(levels):
     xs, ys, lo, hi = [], [], [], []
@@ -45,8 +45,8 @@ def plot_reliability(results: Mapping[str, Any], path: str | os.PathLike[str]) -
     label = f'level {level}' if level not in ('None', None) else 'other objects'
     ax.bar(xs, ys, width, yerr=[lo, hi], capsize=3, label=label)
   ax.set_xticks(range(len(policies)))
-  ax.set_xticklabels([f"{name}\n{entry['mpph']:.0f} MPPH, agree {entry['judge_agreement']:.2f}"
-                      if entry['judge_agreement'] == entry['judge_agreement'] else f"{name}\n{entry['mpph']:.0f} MPPH"
+  ax.set_xticklabels([f"{name.replace('_', ' ')}\n{entry['mpph']:.0f} MPPH" + (
+      f"\nagreement {entry['judge_agreement']:.2f}" if entry['judge_agreement'] == entry['judge_agreement'] else '')
                       for name, entry in policies.items()], fontsize=8)
   ax.set_ylim(0, 1.05)
   ax.set_ylabel('reliability (successes / attempts)')
