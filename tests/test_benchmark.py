@@ -99,3 +99,13 @@ def test_a_run_killed_with_sigkill_resumes_to_the_same_results(reference, tmp_pa
   resumed = sorted(read_attempts(out / 'attempts.jsonl'), key=key)
   assert [_strip(r) for r in resumed] == [_strip(r) for r in sorted(read_attempts(reference / 'attempts.jsonl'),
                                                                       key=key)]
+
+
+def test_ray_workers_hand_their_trials_to_the_driver(reference, tmp_path):
+  """--ray: trials run as Ray tasks (a local instance) that return their records; the driver appends them. Same
+  results as the serial run."""
+  out = tmp_path / 'ray'
+  assert main([*ARGS, '--ray', '--out', str(out)]) == 0
+  assert _strip(json.loads((out / 'results.json').read_text())) == _strip(
+      json.loads((reference / 'results.json').read_text()))
+  assert len(read_attempts(out / 'attempts.jsonl')) == len(read_attempts(reference / 'attempts.jsonl'))
