@@ -39,7 +39,8 @@ import mujoco
 import numpy as np
 
 from dexjax.bench import gripper_bodies as gb
-from dexjax.bench.tool_path import PHASES, PathSettings, tool_path
+from dexjax.bench.grasp_scene import GraspScene, PhysicsSettings
+from dexjax.bench.tool_path import PHASES, tool_path
 from dexjax.contacts.suction import suction_seal
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
@@ -47,7 +48,6 @@ from dexjax.geometry.object_model import ObjectModel
 from dexjax.quality.gripper_geometry import GripperGeometry
 from dexjax.sim.bodies import HeapObject
 from dexjax.sim.heap import HeapState
-from dexjax.sim.scene import SettleSettings, compile_heap, heap_slots, heap_spec
 
 PHYSICS_FAILURES = ('none', 'collision_bin', 'no_object', 'no_seal', 'seal_lost', 'dropped', 'multiple_objects')
 """Failure reasons of the physics judge: the gripper pressed on the bin; nothing between the closed jaws (or under
@@ -55,46 +55,6 @@ the cup); the analytic seal test failed at the actual contact; a suction-ring li
 lost during the lift, transport or shake; more than one object was lifted."""
 
 RING_LIMITS = ('vacuum', 'friction', 'torsion', 'bending')
-_BIN_GEOMS = ('ground', 'wall0', 'wall1', 'wall2', 'wall3')
-
-
-@dataclasses.dataclass(frozen=True)
-class PhysicsSettings:
-  """Settings of the physics judge (SI units).
-
-  Attributes:
-    timestep: physics step, s (2 ms).
-    solver_iterations: constraint solver iterations (Newton).
-    noslip_iterations: MuJoCo noslip iterations (friction without creep: a held object does not slide out).
-    impratio: frictional-to-normal constraint impedance ratio (elliptic cones).
-    standoff: distance of the pre-grasp pose behind the grasp along the approach, m (the analytic reward's sweep).
-    max_standoff: the tool starts at most this far back when the pre-grasp pose is inside an object, m.
-    guard_force: the approach stops once contacts push the gripper back along the approach with this force, N.
-    guard_retract: when the guard stops the approach, the tool backs off this much along it, m.
-    press_depth: the suction approach may go on this far past the planned point, m.
-    bin_force_limit: contact force of the gripper on the bin (floor or walls) that fails the attempt, N (a
-      fingertip may touch the floor: the analytic reward allows 1 mm; a robot's collision detection stops it
-      at a few tens of newtons).
-    min_lift: an object counts as lifted when its centre of mass ends this much higher than it started, m.
-    seal_break_steps: consecutive steps over a suction-ring limit that break the seal.
-    path: the tool's motions (`PathSettings`).
-    tool: the tool bodies' constants (`ToolSettings`).
-  """
-
-  timestep: float = 0.002
-  solver_iterations: int = 50
-  noslip_iterations: int = 5
-  impratio: float = 10.0
-  standoff: float = 0.05
-  max_standoff: float = 0.3
-  guard_force: float = 10.0
-  guard_retract: float = 0.001
-  press_depth: float = 0.005
-  bin_force_limit: float = 50.0
-  min_lift: float = 0.1
-  seal_break_steps: int = 5
-  path: PathSettings = PathSettings()
-  tool: gb.ToolSettings = gb.ToolSettings()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,168 +78,6 @@ class PhysicsOutcome:
 
 
 _seal = jax.jit(suction_seal)
-
-
-def _quat(matrix: np.ndarray) -> np.ndarray:
-  q = np.zeros(4)
-  mujoco.mju_mat2Quat(q, np.ascontiguousarray(matrix, np.float64).reshape(-1))
-  return q
-
-
-class _Sim:
-  """One heap with one tool in MuJoCo, and the bookkeeping the verdict needs."""
-
-  def __init__(self, objects: Sequence[HeapObject], heap: HeapState, poses: np.ndarray, pose: np.ndarray,
-               grasp: ParallelJawGrasp | SuctionGrasp, gripper, settings: PhysicsSettings,
-               geometry: GripperGeometry):
-    self.settings, self.suction = settings, isinstance(grasp, SuctionGrasp)
-    self.contact_point, self.contact_offset = None, np.zeros(3)  # suction: the sealed contact (world, hand frame)
-    spec = heap_spec(objects, heap, SettleSettings(timestep=settings.timestep, impratio=settings.impratio,
-                                                   solver_iterations=settings.solver_iterations))
-    opt = spec.option
-    opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    opt.noslip_iterations = settings.noslip_iterations
-    self.slots = heap_slots(heap)
-    friction = np.asarray(heap.friction, np.float64)
-    ids = np.asarray(heap.object_ids)
-    hulls = [(f'obj{s}_hull{j}', max(float(friction[s]), mujoco.mjMINMU))
-             for s in self.slots for j in range(len(objects[int(ids[s])].hulls))]
-    if self.suction:
-      gb.add_suction_cup(spec, pose, gripper, geometry, settings.tool)
-      gb.add_vacuum(spec, [f'obj{s}' for s in self.slots], settings.tool)
-      tool_geoms = [gb.CUP, gb.SHAFT]
-    else:
-      self.stroke = 0.5 * float(grasp.width) + settings.tool.close_overtravel
-      gb.add_parallel_jaw(spec, pose, float(grasp.width), gripper, settings.tool)
-      tool_geoms = [gb.PALM, *gb.FINGERS]
-    gb.add_gripper_pairs(spec, tool_geoms, hulls, _BIN_GEOMS,
-                         (2.0 / 3.0) * float(getattr(gripper, 'finger_radius', 0.0)), settings.tool)
-    self.model = compile_heap(spec, objects, heap)
-    self.data = mujoco.MjData(self.model)
-    m = self.model
-    self.hand = m.body(gb.HAND).id
-    self.tool_geoms = np.array([m.geom(g).id for g in tool_geoms])
-    self.finger_geoms = [m.geom(g).id for g in gb.FINGERS] if not self.suction else []
-    self.bin_geoms = np.array([m.geom(g).id for g in _BIN_GEOMS])
-    self.body_slot = np.full(m.nbody, -1)
-    for s in self.slots:
-      self.body_slot[m.body(f'obj{s}').id] = s
-    self.geom_slot = self.body_slot[m.geom_bodyid]
-    self.qpos_adr = {int(s): int(m.jnt_qposadr[m.body_jntadr[m.body(f'obj{s}').id]]) for s in self.slots}
-    for s, adr in self.qpos_adr.items():
-      self.data.qpos[adr:adr + 7] = poses[s]
-    self.poses = np.array(poses, np.float64)
-    self.hand_adr = int(m.jnt_qposadr[m.body_jntadr[self.hand]])
-    self.quat = _quat(pose[:3, :3])
-    mujoco.mj_forward(m, self.data)
-    self.start_z = {s: float(self.data.xipos[m.body(f'obj{s}').id][2]) for s in self.slots}
-
-  def place_tool(self, position: np.ndarray) -> None:
-    """Tool and target at ``position`` with the grasp's orientation, at rest."""
-    d = self.data
-    d.mocap_pos[0], d.mocap_quat[0] = position, self.quat
-    d.qpos[self.hand_adr:self.hand_adr + 3], d.qpos[self.hand_adr + 3:self.hand_adr + 7] = position, self.quat
-    d.qvel[:] = 0.0
-    mujoco.mj_forward(self.model, d)
-
-  def contacts(self, geoms_a: np.ndarray, geoms_b: np.ndarray | None = None, depth: float = 0.0):
-    """(geom of ``geoms_a``, other geom, normal force) of contacts deeper than ``-depth`` (other in ``geoms_b``)."""
-    d = self.data
-    n = d.ncon
-    if not n:
-      return np.zeros(0, int), np.zeros(0, int), np.zeros(0)
-    g = d.contact.geom[:n]
-    dist, adr = d.contact.dist[:n], d.contact.efc_address[:n]
-    first = np.isin(g[:, 0], geoms_a)
-    mine = np.where(first, g[:, 0], g[:, 1])
-    other = np.where(first, g[:, 1], g[:, 0])
-    keep = (first | np.isin(g[:, 1], geoms_a)) & (dist < depth)
-    if geoms_b is not None:
-      keep &= np.isin(other, geoms_b)
-    force = np.where(adr >= 0, d.efc_force[np.maximum(adr, 0)], 0.0)
-    return mine[keep], other[keep], force[keep]
-
-  def pushback(self, approach: np.ndarray) -> float:
-    """Force (N) with which objects and the bin push the tool back along ``approach`` (normal forces only): what
-    a wrist force sensor would feel."""
-    d = self.data
-    n = d.ncon
-    g = d.contact.geom[:n]
-    tool = np.isin(g, self.tool_geoms)
-    keep = (tool[:, 0] ^ tool[:, 1]) & (d.contact.efc_address[:n] >= 0)
-    normal = d.contact.frame[:n, :3][keep]
-    force = d.efc_force[d.contact.efc_address[:n][keep]]
-    return float(np.sum(force * np.abs(normal @ approach)))
-
-  def bin_force(self) -> float:
-    return float(np.sum(self.contacts(self.tool_geoms, self.bin_geoms)[2]))
-
-  def between_pads(self) -> set[int]:
-    """Slots touching both jaw pads."""
-    touching = []
-    for pad in self.finger_geoms:
-      _, other, _ = self.contacts(np.array([pad]), depth=1e-4)
-      touching.append({int(self.geom_slot[o]) for o in other if self.geom_slot[o] >= 0})
-    return touching[0] & touching[1]
-
-  def lifted(self) -> set[int]:
-    m = self.model
-    return {int(s) for s in self.slots
-            if self.data.xipos[m.body(f'obj{s}').id][2] - self.start_z[s] >= self.settings.min_lift}
-
-  def current_poses(self) -> np.ndarray:
-    poses = self.poses.copy()
-    for s, adr in self.qpos_adr.items():
-      poses[s] = self.data.qpos[adr:adr + 7]
-    return poses
-
-  def hand_frame(self) -> tuple[np.ndarray, np.ndarray]:
-    return self.data.xpos[self.hand].copy(), self.data.xmat[self.hand].reshape(3, 3).copy()
-
-  def ray_slot(self, reach: float) -> tuple[int, float]:
-    """(slot of the object the tool's axis meets first from ``reach`` behind the mouth, its distance past the
-    mouth (negative: behind it, the bellows compressed), m); (-1, inf) when it meets no object."""
-    origin, rot = self.hand_frame()
-    geom = np.zeros(1, np.int32)
-    dist = mujoco.mj_ray(self.model, self.data, origin - reach * rot[:, 0], rot[:, 0], None, 1, self.hand, geom)
-    if dist < 0 or geom[0] < 0 or self.geom_slot[geom[0]] < 0:
-      return -1, math.inf
-    return int(self.geom_slot[geom[0]]), float(dist - reach)
-
-  def weld_wrench(self, eq: int, slot: int, contact: np.ndarray) -> np.ndarray:
-    """(6,) force (N) and torque about ``contact`` (N m), world frame, that weld ``eq`` exerts on ``slot``."""
-    m, d = self.model, self.data
-    rows = np.flatnonzero((d.efc_type[:d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY) & (d.efc_id[:d.nefc] == eq))
-    gen = np.zeros(m.nv)
-    if mujoco.mj_isSparse(m):
-      for r in rows:
-        a, n = d.efc_J_rowadr[r], d.efc_J_rownnz[r]
-        gen[d.efc_J_colind[a:a + n]] += d.efc_J[a:a + n] * d.efc_force[r]
-    else:
-      gen = d.efc_J[:d.nefc * m.nv].reshape(d.nefc, m.nv)[rows].T @ d.efc_force[rows]
-    body = m.body(f'obj{slot}').id
-    adr = m.jnt_dofadr[m.body_jntadr[body]]
-    force = gen[adr:adr + 3].copy()
-    torque = d.xmat[body].reshape(3, 3) @ gen[adr + 3:adr + 6] + np.cross(d.xpos[body] - contact, force)
-    # The lip's contacts with the object are part of the cup's wrench too.
-    local = np.zeros(6)
-    for k in np.flatnonzero(self._cup_contacts(slot)):
-      mujoco.mj_contactForce(m, d, int(k), local)
-      frame = d.contact.frame[k].reshape(3, 3)  # rows: normal (geom1 -> geom2), tangents
-      f = frame.T @ local[:3]
-      if self.geom_slot[d.contact.geom[k, 0]] == slot:  # the force acts on geom2: flip it for the object
-        f = -f
-      force += f
-      torque += np.cross(d.contact.pos[k] - contact, f)
-    return np.concatenate([force, torque])
-
-  def _cup_contacts(self, slot: int) -> np.ndarray:
-    """(ncon,) bool: active contacts between the tool and the object in ``slot``."""
-    d = self.data
-    g = d.contact.geom[:d.ncon]
-    tool = np.isin(g, self.tool_geoms)
-    obj = self.geom_slot[g] == slot
-    return ((tool[:, 0] & obj[:, 1]) | (tool[:, 1] & obj[:, 0])) & (d.contact.efc_address[:d.ncon] >= 0)
 
 
 def ring_violation(wrench: np.ndarray, frame: np.ndarray, friction: float, gripper: SuctionGripper) -> str | None:
@@ -311,7 +109,7 @@ def ring_violation(wrench: np.ndarray, frame: np.ndarray, friction: float, gripp
   return None
 
 
-def _start(sim: _Sim, grasp_origin: np.ndarray, approach: np.ndarray) -> np.ndarray:
+def _start(sim: GraspScene, grasp_origin: np.ndarray, approach: np.ndarray) -> np.ndarray:
   """The pre-grasp position: ``standoff`` back along the approach, further while the tool starts in an object."""
   s = sim.settings
   back = s.standoff
@@ -342,7 +140,7 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
   """
   grasp = jax.tree.map(np.asarray, grasp)
   pose = np.asarray(suction_pose(grasp) if isinstance(grasp, SuctionGrasp) else parallel_jaw_pose(grasp), np.float64)
-  sim = _Sim(objects, heap, np.asarray(poses, np.float64), pose, grasp, gripper, settings, geometry)
+  sim = GraspScene(objects, heap, np.asarray(poses, np.float64), pose, grasp, gripper, settings, geometry)
   approach, origin = pose[:3, 0], pose[:3, 3]
   start = _start(sim, origin, approach)
   target = origin + (settings.press_depth * approach if sim.suction else 0.0)
@@ -410,7 +208,7 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
                         poses=sim.current_poses(), detail=detail)
 
 
-def _seal_on(sim: _Sim, models: Sequence[ObjectModel], heap: HeapState, gripper: SuctionGripper,
+def _seal_on(sim: GraspScene, models: Sequence[ObjectModel], heap: HeapState, gripper: SuctionGripper,
              detail: dict[str, Any]) -> tuple[str | None, int, int]:
   """The seal test at the cup's actual contact; activates the vacuum weld when it seals.
 
@@ -432,8 +230,7 @@ def _seal_on(sim: _Sim, models: Sequence[ObjectModel], heap: HeapState, gripper:
   if not seal.sealed:
     return 'no_seal', -1, slot
   eq = m.equality(f'{gb.VACUUM}_obj{slot}').id
-  hand_rot = frame
-  rel_pos = hand_rot.T @ (origin - mouth)
+  rel_pos = frame.T @ (origin - mouth)  # the weld's relative pose: the object's frame in the hand's frame
   rel_quat = np.zeros(4)
   mujoco.mju_mulQuat(rel_quat, _conjugate(d.xquat[sim.hand]), d.xquat[body])
   m.eq_data[eq, 3:6], m.eq_data[eq, 6:10] = rel_pos, rel_quat

@@ -14,7 +14,6 @@ Judges: `dexjax.bench.judges` (``judge(key, action, camera, state) -> (Verdict, 
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
