@@ -127,9 +127,7 @@ def _worker_state(spec: BenchmarkSpec, cache_dir: str | None) -> dict[str, Any]:
     from dexjax.models.shipped import load_models  # pylint: disable=g-import-not-at-top
     from dexjax.policy.composite import plan_grasp  # pylint: disable=g-import-not-at-top
     from dexjax.policy.presets import make_policy, uses_models  # pylint: disable=g-import-not-at-top
-    if 'world' in _WORKER:
-      _WORKER['world'].close()
-    _WORKER.clear()
+    release_worker()
     world = PickingWorld(spec.config, cache_dir=cache_dir)
     models = load_models(spec.model) if any(uses_models(p) for p in spec.policies) else {}
     plan = jax.jit(plan_grasp)
@@ -141,6 +139,13 @@ def _worker_state(spec: BenchmarkSpec, cache_dir: str | None) -> dict[str, Any]:
               'physics': physics_judge(world, spec.physics)}
     _WORKER.update(key=key, world=world, planners=planners, judges=judges)
   return _WORKER
+
+
+def release_worker() -> None:
+  """Closes and forgets this process's benchmark world and planners (built by its first trial task), if any."""
+  if 'world' in _WORKER:
+    _WORKER['world'].close()
+  _WORKER.clear()
 
 
 def _trial_task(spec: BenchmarkSpec, log_path: str, cache_dir: str | None, append: bool, index: int) -> dict:
@@ -228,8 +233,11 @@ def run_benchmark(spec: BenchmarkSpec, out_dir: str | os.PathLike[str], *, worke
     for record in result['records']:
       append_attempt(log, record)
 
-  run = run_tasks(task, todo, backend=backend, workers=workers, progress=progress, on_result=on_result,
-                  ray_address=ray_address, description='trials')
+  try:
+    run = run_tasks(task, todo, backend=backend, workers=workers, progress=progress, on_result=on_result,
+                    ray_address=ray_address, description='trials')
+  finally:
+    release_worker()  # a serial run built the world here: free its renderer and compiled planners
   records = read_attempts(log)
   results = summarize_run(records, spec, settings)
   results['failed_trials'] = {f'{pairs(spec)[i][0]}/{pairs(spec)[i][1]}': msg for i, msg in run.failures.items()}
@@ -268,5 +276,5 @@ def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: 
 
 
 __all__ = ['BENCHMARK_NOISE_SETTINGS', 'BenchmarkSpec', 'JUDGES', 'benchmark_config', 'benchmark_noise', 'LOG_FILE', 'RESULTS_FILE', 'SETTINGS_FILE', 'check_objects', 'pairs',
-           'run_benchmark',
+           'release_worker', 'run_benchmark',
            'summarize_run', 'unfinished']
