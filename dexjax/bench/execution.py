@@ -231,16 +231,13 @@ def _seal_on(sim: GraspScene, models: Sequence[ObjectModel], heap: HeapState, gr
     return 'no_seal', -1, slot
   eq = m.equality(f'{gb.VACUUM}_obj{slot}').id
   rel_pos = frame.T @ (origin - mouth)  # the weld's relative pose: the object's frame in the hand's frame
-  rel_quat = np.zeros(4)
-  mujoco.mju_mulQuat(rel_quat, _conjugate(d.xquat[sim.hand]), d.xquat[body])
+  hand_inverse, rel_quat = np.zeros(4), np.zeros(4)
+  mujoco.mju_negQuat(hand_inverse, d.xquat[sim.hand])
+  mujoco.mju_mulQuat(rel_quat, hand_inverse, d.xquat[body])
   m.eq_data[eq, 3:6], m.eq_data[eq, 6:10] = rel_pos, rel_quat
   d.eq_active[eq] = 1
   sim.contact_offset = frame.T @ (sim.contact_point - mouth)  # the contact in the hand's frame (it moves with it)
   return None, eq, slot
-
-
-def _conjugate(q: np.ndarray) -> np.ndarray:
-  return np.array([q[0], -q[1], -q[2], -q[3]])
 
 
 __all__ = ['PHYSICS_FAILURES', 'PhysicsOutcome', 'PhysicsSettings', 'RING_LIMITS', 'execute_grasp', 'ring_violation']

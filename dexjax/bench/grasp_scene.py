@@ -67,12 +67,6 @@ class PhysicsSettings:
   tool: gb.ToolSettings = gb.ToolSettings()
 
 
-def _quat(matrix: np.ndarray) -> np.ndarray:
-  q = np.zeros(4)
-  mujoco.mju_mat2Quat(q, np.ascontiguousarray(matrix, np.float64).reshape(-1))
-  return q
-
-
 class GraspScene:
   """One heap with one tool in MuJoCo (a fresh model per attempt), and the queries the physics judge's verdict
   needs: contacts and their forces, what lies between the jaws, what was lifted, the vacuum weld's wrench."""
@@ -118,7 +112,7 @@ class GraspScene:
       self.data.qpos[adr:adr + 7] = poses[s]
     self.poses = np.array(poses, np.float64)
     self.hand_adr = int(m.jnt_qposadr[m.body_jntadr[self.hand]])
-    self.quat = _quat(pose[:3, :3])
+    self.quat = gb.rotation_quat(pose[:3, :3])
     mujoco.mj_forward(m, self.data)
     self.start_z = {s: float(self.data.xipos[m.body(f'obj{s}').id][2]) for s in self.slots}
 

@@ -73,10 +73,16 @@ def _box(body, name: str, centre: Sequence[float], half: Sequence[float], mass: 
                 contype=_GRIPPER_GROUP, conaffinity=0, rgba=[0.3, 0.3, 0.35, 1.0])
 
 
+def rotation_quat(matrix: np.ndarray) -> np.ndarray:
+  """(4,) float64 unit quaternion (w, x, y, z) of a (3, 3) rotation matrix (MuJoCo's convention)."""
+  quat = np.zeros(4)
+  mujoco.mju_mat2Quat(quat, np.ascontiguousarray(matrix, np.float64).reshape(-1))
+  return quat
+
+
 def _hand(spec: mujoco.MjSpec, pose: np.ndarray, tool: ToolSettings):
   """The mocap target and the free hand welded to it, both at ``pose`` (4, 4)."""
-  quat = np.zeros(4)
-  mujoco.mju_mat2Quat(quat, np.ascontiguousarray(pose[:3, :3]).reshape(-1))
+  quat = rotation_quat(pose[:3, :3])
   world = spec.worldbody
   world.add_body(name=TARGET, mocap=True, pos=pose[:3, 3].tolist(), quat=quat.tolist())
   hand = world.add_body(name=HAND, pos=pose[:3, 3].tolist(), quat=quat.tolist(), gravcomp=1.0)
@@ -156,4 +162,4 @@ def add_vacuum(spec: mujoco.MjSpec, object_bodies: Sequence[str], tool: ToolSett
 
 
 __all__ = ['CUP', 'FINGERS', 'HAND', 'PALM', 'SHAFT', 'TARGET', 'ToolSettings', 'VACUUM', 'add_gripper_pairs',
-           'add_parallel_jaw', 'add_suction_cup', 'add_vacuum']
+           'add_parallel_jaw', 'add_suction_cup', 'add_vacuum', 'rotation_quat']

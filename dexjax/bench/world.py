@@ -24,7 +24,6 @@ import re
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from dexjax.generate.cameras import image_size
@@ -33,13 +32,12 @@ from dexjax.generate.labels import LabelParams
 from dexjax.generate.pipeline import label_params, usable_objects
 from dexjax.quality.heap_reward import HeapScene, heap_scene
 from dexjax.render.camera import Camera
-from dexjax.render.noise import apply_sensor_noise
+from dexjax.render.noise import noisy_depth
 from dexjax.render.rendering import DepthRenderer, build_render_scene, empty_bin_scene
 from dexjax.sim.bodies import heap_objects
 from dexjax.sim.heap import HeapState, sample_heap_state
 from dexjax.sim.settling import settle
 
-_noise = jax.jit(apply_sensor_noise)
 _PROCEDURAL_LEVEL = re.compile(r'procedural:L([123])/')
 
 
@@ -172,10 +170,7 @@ class PickingWorld:
     scene = build_render_scene(self.meshes, np.where(state.mask, state.object_ids, -1), state.poses, state.mask,
                                bin=self.config.bin)
     rendered = self.renderer.render(scene, camera)
-    depth = rendered.depth
-    noise = self.config.noise
-    if any((noise.use_gamma, noise.use_gp, noise.use_dropout)):
-      depth = np.asarray(_noise(key, jnp.asarray(depth), noise), np.float32)
+    depth = noisy_depth(key, rendered.depth, self.config.noise)
     return np.asarray(depth, np.float32), np.asarray(rendered.mask, np.int32)
 
   def empty_bin(self, camera: Camera) -> np.ndarray:

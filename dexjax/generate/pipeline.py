@@ -40,14 +40,13 @@ from dexjax.generate.labels import ImageRows, LabelParams, label_image
 from dexjax.objects.folder import Rejection
 from dexjax.objects.sets import load_object_set, prepare_object_set
 from dexjax.quality.heap_reward import HeapScene, heap_scene, scene_slot_ids
-from dexjax.render.noise import apply_sensor_noise
+from dexjax.render.noise import noisy_depth
 from dexjax.render.rendering import DepthRenderer, build_render_scene
 from dexjax.sim.bodies import heap_objects
 from dexjax.sim.heap import sample_heap_states
 from dexjax.sim.settling import settle
 
 _label = jax.jit(label_image)
-_noise = jax.jit(apply_sensor_noise)
 _STAGES = ('settle', 'render', 'label', 'write')
 
 
@@ -192,9 +191,7 @@ class ShardGenerator:
     clock = time.perf_counter()
     camera = run_camera(k_camera, config)
     rendered = self.renderer.render(render_scene, camera)
-    depth = rendered.depth
-    if any((config.noise.use_gamma, config.noise.use_gp, config.noise.use_dropout)):
-      depth = np.asarray(_noise(k_noise, jnp.asarray(depth), config.noise), np.float32)
+    depth = noisy_depth(k_noise, rendered.depth, config.noise)
     stats['seconds']['render'] += time.perf_counter() - clock
     clock = time.perf_counter()
     out: ImageRows = _label(k_label, jnp.asarray(depth), jnp.asarray(rendered.mask), camera, scene, pj_sets,

@@ -194,3 +194,16 @@ def apply_sensor_noise(key: jax.Array, depth: jax.Array, noise: SensorNoise = Se
   if noise.use_dropout:
     depth = dropout(dropout_key, depth, noise.dropout_rate)
   return depth
+
+
+_jitted_noise = jax.jit(apply_sensor_noise)
+
+
+def noisy_depth(key: jax.Array, depth, noise: SensorNoise):
+  """Host helper: (H, W) float32 NumPy depth with ``noise`` applied (one jitted `apply_sensor_noise`, compiled once
+  per image size), or ``depth`` itself when every noise model is off."""
+  import numpy as np  # pylint: disable=g-import-not-at-top
+  if not any((noise.use_gamma, noise.use_gp, noise.use_dropout)):
+    return np.asarray(depth, np.float32)
+  return np.asarray(_jitted_noise(key, jnp.asarray(depth), noise), np.float32)
+
