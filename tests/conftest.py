@@ -44,3 +44,17 @@ def sphere(cache_dir):
 @pytest.fixture(scope="session")
 def cylinder(cache_dir):
   return _model("cylinder", cache_dir)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_programs():
+  """After each test file, drops JAX's compiled programs and traces (jitted functions recompile, or load from the
+  persistent cache, when a later file calls them). A worker runs dozens of files; keeping everything every file
+  compiled grew each worker to 7 GB by the end of the suite."""
+  yield
+  if os.environ.get("DEXJAX_TEST_KEEP_COMPILED"):
+    return
+  import gc
+  import jax
+  jax.clear_caches()
+  gc.collect()
