@@ -30,6 +30,9 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--split', choices=('all', 'train', 'val'), default='all', help='rows to score (default all)')
   p.add_argument('--gripper', choices=('parallel_jaw', 'suction'), help='only this gripper (from a run directory)')
   p.add_argument('--batch-size', type=int, default=256, help='crops per forward pass (default 256)')
+  p.add_argument('--views', choices=('saved', 'single', 'symmetric'), default='saved',
+                 help="'symmetric': average each prediction over the crop's four symmetric views, 'single': one "
+                      "view; default: as the model was saved (the shipped models: symmetric)")
   p.add_argument('--no-progress', action='store_true', help='no progress bar')
   return p
 
@@ -62,12 +65,15 @@ def main(argv: list[str] | None = None) -> int:
   wanted = (args.gripper,) if args.gripper else GRIPPER_NAMES
   found = load_models(checkpoint, wanted)
   models = [found[g] for g in GRIPPER_NAMES if g in found and g in wanted]
+  if args.views != 'saved':
+    models = [dataclasses.replace(m, symmetric_views=args.views == 'symmetric') for m in models]
   if not models:
     raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {sorted(found)})')
   results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress)
              for m in models}
   print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': os.fspath(Path(args.data).absolute()),
-                    'split': args.split, 'grippers': results}, indent=1))
+                    'split': args.split, 'symmetric_views': {m.gripper: m.symmetric_views for m in models},
+                    'grippers': results}, indent=1))
   return 0
 
 

@@ -68,15 +68,30 @@ def _subset(data: Path, fraction: float, root: Path, total: int | None = None) -
   return out
 
 
-def score_run(run: Path, evals: dict[str, Path]) -> dict:
-  """Each gripper's best model on its run's validation split and on every evaluation dataset."""
+def _run_models(run: Path, grippers: list[str] | None, symmetric_views: bool) -> dict:
+  """The best model of each gripper of ``run`` (those of ``grippers``, default all), with ``symmetric_views``."""
+  config = load_train_config(run / CONFIG_FILE)
+  for gripper in grippers or []:
+    if gripper not in config.grippers:
+      raise SystemExit(f'--grippers {gripper}: expected one of the run\'s grippers {list(config.grippers)}')
+  return {g: dataclasses.replace(load(run, g), symmetric_views=symmetric_views)
+          for g in config.grippers if not grippers or g in grippers}
+
+
+def score_run(run: Path, evals: dict[str, Path], grippers: list[str] | None = None,
+              symmetric_views: bool = False) -> dict:
+  """Each gripper's best model on its run's validation split and on every evaluation dataset (the validation
+  split is scored again when the model averages symmetric views; the training records are single-view)."""
   config = load_train_config(run / CONFIG_FILE)
   scores = {}
-  for gripper in config.grippers:
-    model = load(run, gripper)
+  for gripper, model in _run_models(run, grippers, symmetric_views).items():
     records = [r for r in read_records(run) if r['gripper'] == gripper]
     best = max(records, key=lambda r: r['val_balanced_accuracy'] or 0)
     entry = {'validation': {k: best.get(f'val_{k}') for k in METRICS}}
+    if symmetric_views:
+      data = json.loads((run / SUMMARY_FILE).read_text())['data']
+      metrics = evaluate_model(model, data, config, 'val')
+      entry['validation'] = {k: metrics.get(k) for k in METRICS}
     for name, path in evals.items():
       metrics = evaluate_model(model, path, config, 'all')
       entry[name] = {k: metrics.get(k) for k in METRICS}
@@ -113,17 +128,16 @@ def _ship(args) -> dict:
   summary = json.loads((run / SUMMARY_FILE).read_text())
   stats = json.loads((run / STATS_FILE).read_text())
   data_config = json.loads((Path(args.data) / 'config.json').read_text())
-  scores = score_run(run, evals)
+  scores = score_run(run, evals, args.grippers, args.symmetric_views)
   written = {}
-  for gripper in config.grippers:
-    model = load(run, gripper)
+  for gripper, model in _run_models(run, args.grippers, args.symmetric_views).items():
     info = {
         'data': {'command': args.data_command, 'objects': data_config['config']['objects']['sources'],
                  'shards': len(list_shards(summary['data'])), 'train_rows': stats[gripper]['train_rows'],
                  'positive_rate': stats[gripper]['positive_rate'],
                  'camera': data_config['config']['camera'], 'gripper': data_config['config']['grippers'][gripper]},
         'network': {'crop_size': model.config.crop_size, 'crop_window': model.crop_window,
-                    'parameters': num_parameters(model.params)},
+                    'parameters': num_parameters(model.params), 'symmetric_views': model.symmetric_views},
         'training': {'command': args.train_command, 'seconds': summary['seconds'],
                      'epochs': config.loop.epochs, 'best': summary['grippers'][gripper]},
         'metrics': scores[gripper], 'date': time.strftime('%Y-%m-%d')}
@@ -192,12 +206,16 @@ def main(argv: list[str] | None = None) -> int:
   s = sub.add_parser('score')
   s.add_argument('--run', required=True)
   s.add_argument('--eval', nargs='+', default=[])
+  s.add_argument('--grippers', nargs='+', help="only these grippers' models (default: every one of the run)")
+  s.add_argument('--symmetric-views', action='store_true', help='average over the four symmetric views')
   h = sub.add_parser('ship')
   h.add_argument('--run', required=True)
   h.add_argument('--eval', nargs='+', default=[])
   h.add_argument('--data', required=True)
   h.add_argument('--data-command', required=True)
   h.add_argument('--train-command', required=True)
+  h.add_argument('--grippers', nargs='+', help="only these grippers' models (default: every one of the run)")
+  h.add_argument('--symmetric-views', action='store_true', help='ship models that average the four symmetric views')
   f = sub.add_parser('s1', help="Fig. S1 (C): per-layer t-SNE separation on unseen objects")
   f.add_argument('--data', nargs='+', required=True)
   f.add_argument('--model', default='pretrained')
@@ -215,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
   elif args.command == 'curve':
     result = _curve(args)
   elif args.command == 'score':
-    result = score_run(Path(args.run), _evals(args.eval))
+    result = score_run(Path(args.run), _evals(args.eval), args.grippers, args.symmetric_views)
   else:
     result = _ship(args)
   print(json.dumps(result, indent=1))

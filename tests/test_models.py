@@ -120,3 +120,63 @@ def test_im_depth_sub_takes_crops_relative_to_the_grasp_depth():
     assert not np.allclose(before['pc1'], after['pc1'], atol=1e-4)
   with pytest.raises(ValueError, match="input_depth_mode: expected one of"):
     GQCNNConfig(input_depth_mode='im_only').validate()
+
+
+def _numpy_view(crop, rotate, flip_lr, flip_ud):
+  """Reference: i -> S - i about the grasp pixel along the flipped axes, row / column 0 (mapped outside) zeroed."""
+  s = crop.shape[0]
+  out = crop.copy()
+  for axis, on in ((0, rotate or flip_ud), (1, rotate or flip_lr)):
+    if on and not (rotate and (flip_ud if axis == 0 else flip_lr)):
+      out = np.take(out, (s - np.arange(s)) % s, axis=axis)
+      out[(0, slice(None)) if axis == 0 else (slice(None), 0)] = 0.0
+  return out
+
+
+@pytest.fixture(scope="module")
+def small_suction_model():
+  from dexjax.models import GraspQualityModel, Normalization
+  config = GQCNNConfig(crop_size=8, conv_filters=(4,), conv_kernels=(3,), pool_after=(0,), fc_size=8,
+                       pose_size=4, merge_size=8, pose_dim=SUCTION_POSE_DIM,
+                       input_depth_mode='im_depth_sub').validate()
+  norm = Normalization(image_mean=jnp.float32(0.01), image_std=jnp.float32(0.02),
+                       pose_mean=jnp.array([0.7, 0.0], jnp.float32), pose_std=jnp.array([0.05, 0.3], jnp.float32))
+  return GraspQualityModel(params=init_gqcnn(jax.random.key(3), config), normalization=norm, config=config,
+                           gripper='suction', crop_window=8)
+
+
+def test_symmetric_views_average_the_four_reflections_of_each_grasp(small_suction_model):
+  """p(success) with ``symmetric_views`` is the mean of the single-view model's p over the identity, the
+  180-degree rotation (suction angle negated), the left-right flip and the up-down flip (angle negated), each
+  built here in NumPy; it is unchanged when the input itself is one of its views."""
+  from dexjax.models import predict
+  from dexjax.models.symmetry import NUM_VIEWS, symmetric_views
+  single = small_suction_model
+  averaged = dataclasses.replace(single, symmetric_views=True)
+  rng = np.random.default_rng(0)
+  crops = rng.uniform(0.6, 0.8, (5, 8, 8, 1)).astype(np.float32)
+  crops[:, 0, :] = crops[:, :, 0] = 0.0  # so that each reflection is undone by itself (nothing is cut off)
+  poses = np.c_[rng.uniform(0.6, 0.8, 5), rng.uniform(-0.5, 0.5, 5)].astype(np.float32)
+  flags = [(False, False, False), (True, False, False), (False, True, False), (False, False, True)]
+  expected = np.zeros(5)
+  for rotate, flip_lr, flip_ud in flags:
+    view = np.stack([_numpy_view(c, rotate, flip_lr, flip_ud) for c in crops])
+    angle = poses[:, 1] * (-1.0 if rotate != flip_ud else 1.0)
+    expected += np.asarray(predict(single, jnp.asarray(view), jnp.asarray(np.c_[poses[:, 0], angle]))) / NUM_VIEWS
+  got = np.asarray(predict(averaged, jnp.asarray(crops), jnp.asarray(poses)))
+  np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
+  assert not np.allclose(got, np.asarray(predict(single, jnp.asarray(crops), jnp.asarray(poses))), atol=1e-4)
+  view_crops, view_poses = symmetric_views(jnp.asarray(crops[0]), jnp.asarray(poses[0]), suction=True)
+  assert view_crops.shape == (NUM_VIEWS, 8, 8, 1) and view_poses.shape == (NUM_VIEWS, 2)
+  for k in range(NUM_VIEWS):
+    again = np.asarray(predict(averaged, view_crops[k:k + 1], view_poses[k:k + 1]))
+    np.testing.assert_allclose(again, got[:1], rtol=1e-5, atol=1e-6)
+
+
+def test_symmetric_views_are_saved_with_the_model(small_suction_model, tmp_path):
+  from dexjax.models import load, load_model_file, save_model, save_model_file
+  averaged = dataclasses.replace(small_suction_model, symmetric_views=True)
+  for model in (small_suction_model, averaged):
+    from_file = load_model_file(save_model_file(tmp_path / f'{model.symmetric_views}.msgpack', model))
+    from_orbax = load(save_model(tmp_path / f'orbax-{model.symmetric_views}', 1, model).parent)
+    assert from_file.symmetric_views == from_orbax.symmetric_views == model.symmetric_views

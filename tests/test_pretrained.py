@@ -112,6 +112,14 @@ def test_evaluate_pretrained_scores_unseen_objects(unseen, capsys):
     # Far above chance on objects it never saw (the model card has the full measurement on thousands of rows).
     assert metrics['balanced_accuracy'] > 0.7, (gripper, metrics)
     assert metrics['average_precision'] > 2 * metrics['positives'] / metrics['examples'], (gripper, metrics)
+  assert result['symmetric_views'] == {g: pretrained(g).symmetric_views for g in GRIPPERS}
+  # --views single scores the same rows with one view per grasp.
+  assert evaluate_main(['--checkpoint', 'pretrained', '--data', str(unseen), '--no-progress', '--gripper', 'suction',
+                        '--views', 'single']) == 0
+  single = json.loads(capsys.readouterr().out)
+  assert single['symmetric_views'] == {'suction': False}
+  assert single['grippers']['suction']['examples'] == result['grippers']['suction']['examples']
+  assert single['grippers']['suction']['balanced_accuracy'] > 0.7
 
 
 @pytest.mark.heavy

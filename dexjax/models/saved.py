@@ -12,6 +12,7 @@ the stored normalisation itself, so it is the whole quality function Q(y, u) of 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from flax import struct
 from dexjax.models.fully_convolutional import score_map
 from dexjax.models.gqcnn import GQCNN, GQCNNConfig, init_gqcnn, success_probability
 from dexjax.models.normalization import Normalization
+from dexjax.models.symmetry import NUM_VIEWS, symmetric_views
 
 FORMAT = 'dexjax-gqcnn/1'
 BEST_DIR = 'best'
@@ -41,6 +43,9 @@ class GraspQualityModel:
     gripper: ``'parallel_jaw'`` or ``'suction'`` (static).
     crop_window: side of the image window a crop is read from, pixels (static; ``config.crop_size`` pixels
       after resampling, see `dexjax.train.gripper_examples`).
+    symmetric_views: average the prediction over the crop's four symmetric views (`dexjax.models.symmetry`:
+      the grasp turned 180 degrees and flipped, the augmentations it was trained with; static). Four network
+      evaluations per grasp; the shipped models turn it on (deviation 51). Saved with the model.
   """
 
   params: Any
@@ -48,12 +53,24 @@ class GraspQualityModel:
   config: GQCNNConfig = struct.field(pytree_node=False)
   gripper: str = struct.field(pytree_node=False)
   crop_window: int = struct.field(pytree_node=False)
+  symmetric_views: bool = struct.field(pytree_node=False, default=False)
+
+  def _network_logits(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
+    crops, poses = self.normalization.apply(crops, poses, self.config.subtracts_grasp_depth)
+    return GQCNN(self.config).apply({'params': self.params}, crops, poses, train=False)
 
   def logits(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
-    """Logits (B, 2) of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim)."""
-    crops, poses = self.normalization.apply(jnp.asarray(crops, jnp.float32), jnp.asarray(poses, jnp.float32),
-                                            self.config.subtracts_grasp_depth)
-    return GQCNN(self.config).apply({'params': self.params}, crops, poses, train=False)
+    """Logits (B, 2) of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim). With ``symmetric_views``, the
+    log of the mean of the four views' class probabilities (a softmax of it is that mean)."""
+    crops, poses = jnp.asarray(crops, jnp.float32), jnp.asarray(poses, jnp.float32)
+    if not self.symmetric_views:
+      return self._network_logits(crops, poses)
+    views = functools.partial(symmetric_views, suction=self.gripper == 'suction')
+    view_crops, view_poses = jax.vmap(views)(crops, poses)  # (B, 4, S, S, 1), (B, 4, pose_dim)
+    b = crops.shape[0]
+    logits = self._network_logits(view_crops.reshape((b * NUM_VIEWS,) + crops.shape[1:]),
+                                  view_poses.reshape(b * NUM_VIEWS, -1)).reshape(b, NUM_VIEWS, -1)
+    return jax.nn.logsumexp(jax.nn.log_softmax(logits, axis=-1), axis=1) - jnp.log(float(NUM_VIEWS))
 
   def __call__(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
     """p(success) (B,) of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim)."""
@@ -63,7 +80,8 @@ class GraspQualityModel:
     """p(success) (H', W') of every stride-aligned, axis-aligned crop of a raw depth image (H, W) metres, with
     one raw pose (pose_dim,) or one per cell (H', W', pose_dim): `dexjax.models.score_map` with this model's
     normalisation. Cell (i, j) is the crop centred at (s i + S / 2, s j + S / 2), s = `output_stride`. A
-    single-depth, axis-aligned sliding window (crops are not rotated): not the FC-GQ-CNN of spec section 2.3.
+    single-depth, axis-aligned sliding window (crops are not rotated; one view, whatever ``symmetric_views``
+    says): not the FC-GQ-CNN of spec section 2.3.
 
     Raises:
       ValueError: the model reads resampled windows (``crop_window != config.crop_size``); resample the image
@@ -96,14 +114,19 @@ def save_model(directory: str | os.PathLike, step: int, model: GraspQualityModel
   """Saves ``model`` as checkpoint ``step`` of ``directory`` (older steps there are removed after the new one is
   complete, so a reader always finds a whole model). Returns the step's directory."""
   directory = Path(directory).absolute()
-  meta = {'format': FORMAT, 'gripper': model.gripper, 'crop_window': model.crop_window,
-          'config': dataclasses.asdict(model.config), 'info': info or {}}
+  meta = model_meta(model, info)
   with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
     manager.save(step, args=ocp.args.Composite(
         params=ocp.args.StandardSave({'params': model.params, 'normalization': model.normalization}),
         model=ocp.args.JsonSave(meta)), force=True)
     manager.wait_until_finished()
   return directory / str(step)
+
+
+def model_meta(model: GraspQualityModel, info: dict[str, Any] | None = None) -> dict[str, Any]:
+  """The JSON description saved with a model's arrays (format, gripper, crop window, views, architecture, info)."""
+  return {'format': FORMAT, 'gripper': model.gripper, 'crop_window': model.crop_window,
+          'symmetric_views': model.symmetric_views, 'config': dataclasses.asdict(model.config), 'info': info or {}}
 
 
 def config_from_json(data: dict[str, Any]) -> GQCNNConfig:
@@ -160,7 +183,8 @@ def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityMod
     template = params_template(config)
     restored = manager.restore(step, args=ocp.args.Composite(params=ocp.args.StandardRestore(template)))['params']
   return GraspQualityModel(params=restored['params'], normalization=restored['normalization'], config=config,
-                           gripper=meta['gripper'], crop_window=int(meta['crop_window']))
+                           gripper=meta['gripper'], crop_window=int(meta['crop_window']),
+                           symmetric_views=bool(meta.get('symmetric_views', False)))
 
 
 def model_info(path: str | os.PathLike, gripper: str | None = None) -> dict[str, Any]:
@@ -170,4 +194,5 @@ def model_info(path: str | os.PathLike, gripper: str | None = None) -> dict[str,
     return _read_meta(manager, directory)[1]['info']
 
 
-__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'config_from_json', 'load', 'params_template', 'model_info', 'predict', 'save_model']
+__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'config_from_json', 'load', 'params_template', 'model_info', 'model_meta',
+           'predict', 'save_model']

@@ -13,7 +13,6 @@ directory (`dexjax.models.load`), or a model file.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import json
 import os
@@ -24,7 +23,7 @@ import jax
 import numpy as np
 from flax import serialization
 
-from dexjax.models.saved import FORMAT, GraspQualityModel, config_from_json, load, params_template
+from dexjax.models.saved import FORMAT, GraspQualityModel, config_from_json, load, model_meta, params_template
 
 PRETRAINED = 'pretrained'
 """The name that selects the shipped models wherever a model path is expected."""
@@ -38,8 +37,7 @@ def save_model_file(path: str | os.PathLike, model: GraspQualityModel, info: dic
 
   Written to a temporary file and renamed into place: a reader never sees half a model."""
   path = Path(path)
-  meta = {'format': FORMAT, 'gripper': model.gripper, 'crop_window': model.crop_window,
-          'config': dataclasses.asdict(model.config), 'info': info or {}}
+  meta = model_meta(model, info)
   state = {'meta': json.dumps(meta),
            'params': serialization.to_state_dict(jax.tree.map(np.asarray, model.params)),
            'normalization': serialization.to_state_dict(jax.tree.map(np.asarray, model.normalization))}
@@ -92,7 +90,8 @@ def load_model_file(path: str | os.PathLike, gripper: str | None = None) -> Gras
   params = jax.tree.map(lambda x, t: np.asarray(x, t.dtype), params, template['params'])
   norm = jax.tree.map(lambda x, t: np.asarray(x, t.dtype), norm, template['normalization'])
   return GraspQualityModel(params=params, normalization=norm, config=config_from_json(meta['config']),
-                           gripper=meta['gripper'], crop_window=int(meta['crop_window']))
+                           gripper=meta['gripper'], crop_window=int(meta['crop_window']),
+                           symmetric_views=bool(meta.get('symmetric_views', False)))
 
 
 def model_file_info(path: str | os.PathLike) -> dict[str, Any]:

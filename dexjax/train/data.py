@@ -8,7 +8,7 @@ the grasp is collision-free, contacts one object and its robust probability exce
 
 `symmetrize` is the original's augmentation (spec section 3.4) for one example: independent coin flips for a
 180-degree rotation, a left-right and an up-down flip, all about the grasp pixel (S/2, S/2) so it stays the crop
-centre; for suction the rotation and the up-down flip negate the approach angle.
+centre; for suction the rotation and the up-down flip negate the approach angle (`dexjax.models.symmetry`).
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ import math
 from collections.abc import Mapping
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from dexjax.data.shards import GRIPPER_NAMES
+from dexjax.models.symmetry import symmetric_view
 from dexjax.quality.heap_reward import NONE, NOT_ROBUST
 from dexjax.sampling.crops import model_crop
 
@@ -120,26 +120,10 @@ def gripper_examples(batch: Mapping[str, np.ndarray], gripper: str, crop_size: i
           'robust_probability': rows['robust_probability'].astype(np.float32), 'soft_labels': soft_labels(rows)}
 
 
-def _reflect(image: jax.Array, axis: int) -> jax.Array:
-  """``image`` (S, S, C) reflected about index S/2 along ``axis``: i -> S - i; index 0 (mapped outside) gets 0."""
-  s = image.shape[axis]
-  source = (s - jnp.arange(s)) % s  # S - i, and 0 for i = 0
-  out = jnp.take(image, source, axis=axis)
-  keep = (jnp.arange(s) > 0).reshape((-1, 1) if axis == 0 else (1, -1))[..., None]
-  return jnp.where(keep, out, 0.0)
-
-
 def symmetrize(key: jax.Array, crop: jax.Array, pose: jax.Array, suction: bool) -> tuple[jax.Array, jax.Array]:
   """One example's random symmetry (see the module doc): crop (S, S, 1), pose (pose_dim,) -> the same shapes."""
   rotate, flip_lr, flip_ud = jax.random.bernoulli(key, 0.5, (3,))
-  rotated = _reflect(_reflect(crop, 0), 1)
-  crop = jnp.where(rotate, rotated, crop)
-  crop = jnp.where(flip_lr, _reflect(crop, 1), crop)
-  crop = jnp.where(flip_ud, _reflect(crop, 0), crop)
-  if suction:
-    sign = jnp.where(rotate ^ flip_ud, -1.0, 1.0)
-    pose = pose.at[1].multiply(sign)
-  return crop, pose
+  return symmetric_view(crop, pose, rotate, flip_lr, flip_ud, suction)
 
 
 __all__ = ['grasp_patches', 'gripper_examples', 'pose_vectors', 'soft_labels', 'symmetrize']
