@@ -56,8 +56,9 @@ def _reference(model, crops, poses):
 
 @pytest.fixture(scope='module')
 def batch():
-  """A shipped model and 48 depth-like crops: a plane with a random box on it, at a random depth."""
-  model = pretrained('parallel_jaw')
+  """A shipped model, as one view (the network the analysis opens up), and 48 depth-like crops: a plane with a random
+  box on it, at a random depth."""
+  model = pretrained('parallel_jaw').replace(symmetric_views=False)
   rng = np.random.default_rng(0)
   s = model.config.crop_size
   crops = np.empty((48, s, s, 1))
@@ -80,6 +81,9 @@ def test_activations_match_a_numpy_forward_pass(batch, mode):
     np.testing.assert_allclose(acts[name], ref[name], rtol=2e-3, atol=2e-4, err_msg=name)
   probs = np.asarray(model(crops, poses))
   np.testing.assert_allclose(probs, 1 / (1 + np.exp(ref['output'][:, 0] - ref['output'][:, 1])), atol=1e-4)
+  # The activations are the network's on the crops as given, whatever the model averages its predictions over.
+  views = model.replace(symmetric_views=True)
+  np.testing.assert_array_equal(layer_activations(views, crops, poses)['output'], acts['output'])
 
 
 def test_filters_and_top_activating_crops_match_brute_force(batch):

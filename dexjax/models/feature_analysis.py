@@ -7,7 +7,9 @@ activations for a set of crops, embedded in 2-D by Barnes-Hut t-SNE (perplexity 
 that they separate only at fc4, the layer where the image and pose streams merge).
 
 The computations work on one batch of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim) (the model's
-normalisation is applied here); plots are in `dexjax.models.feature_plots`. t-SNE and the separation score use
+normalisation is applied here), each crop as given: the network's activations, one view per grasp, also for a
+model that averages its predictions over symmetric views (``symmetric_views``); plots are in
+`dexjax.models.feature_plots`. t-SNE and the separation score use
 scikit-learn (``pip install 'dexjax[analysis]'``; Colab has it).
 """
 
