@@ -78,17 +78,17 @@ def _run_models(run: Path, grippers: list[str] | None, symmetric_views: bool) ->
           for g in config.grippers if not grippers or g in grippers}
 
 
-def score_run(run: Path, evals: dict[str, Path], grippers: list[str] | None = None,
-              symmetric_views: bool = False) -> dict:
-  """Each gripper's best model on its run's validation split and on every evaluation dataset (the validation
-  split is scored again when the model averages symmetric views; the training records are single-view)."""
+def score_run(run: Path, evals: dict[str, Path], models: dict | None = None) -> dict:
+  """Each gripper's best model (``models``, default `_run_models` of every gripper, one view) on its run's
+  validation split and on every evaluation dataset (the validation split is scored again for a model that
+  averages symmetric views; the training records are single-view)."""
   config = load_train_config(run / CONFIG_FILE)
   scores = {}
-  for gripper, model in _run_models(run, grippers, symmetric_views).items():
+  for gripper, model in (_run_models(run, None, False) if models is None else models).items():
     records = [r for r in read_records(run) if r['gripper'] == gripper]
     best = max(records, key=lambda r: r['val_balanced_accuracy'] or 0)
     entry = {'validation': {k: best.get(f'val_{k}') for k in METRICS}}
-    if symmetric_views:
+    if model.symmetric_views:
       data = json.loads((run / SUMMARY_FILE).read_text())['data']
       metrics = evaluate_model(model, data, config, 'val')
       entry['validation'] = {k: metrics.get(k) for k in METRICS}
@@ -128,9 +128,10 @@ def _ship(args) -> dict:
   summary = json.loads((run / SUMMARY_FILE).read_text())
   stats = json.loads((run / STATS_FILE).read_text())
   data_config = json.loads((Path(args.data) / 'config.json').read_text())
-  scores = score_run(run, evals, args.grippers, args.symmetric_views)
+  models = _run_models(run, args.grippers, args.symmetric_views)
+  scores = score_run(run, evals, models)
   written = {}
-  for gripper, model in _run_models(run, args.grippers, args.symmetric_views).items():
+  for gripper, model in models.items():
     info = {
         'data': {'command': args.data_command, 'objects': data_config['config']['objects']['sources'],
                  'shards': len(list_shards(summary['data'])), 'train_rows': stats[gripper]['train_rows'],
@@ -233,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
   elif args.command == 'curve':
     result = _curve(args)
   elif args.command == 'score':
-    result = score_run(Path(args.run), _evals(args.eval), args.grippers, args.symmetric_views)
+    run = Path(args.run)
+    result = score_run(run, _evals(args.eval), _run_models(run, args.grippers, args.symmetric_views))
   else:
     result = _ship(args)
   print(json.dumps(result, indent=1))

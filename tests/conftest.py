@@ -46,6 +46,37 @@ def cylinder(cache_dir):
   return _model("cylinder", cache_dir)
 
 
+def _reflect_about_grasp_pixel(crop, rows, cols):
+  """Reference: explicit pixel loops of i -> S - i along the chosen axes of crop (S, S, C); outside the crop is 0."""
+  import numpy as np
+  s = crop.shape[0]
+  out = np.zeros_like(crop)
+  for r in range(s):
+    for c in range(s):
+      sr, sc = (s - r if rows else r), (s - c if cols else c)
+      if 0 <= sr < s and 0 <= sc < s:
+        out[r, c] = crop[sr, sc]
+  return out
+
+
+def _numpy_symmetric_view(crop, rotate, flip_lr, flip_ud):
+  """Reference view of a grasp crop (S, S, C): an optional 180-degree turn about the grasp pixel (S/2, S/2), then
+  optional left-right and up-down flips, each by `_reflect_about_grasp_pixel`."""
+  if rotate:
+    crop = _reflect_about_grasp_pixel(crop, True, True)
+  if flip_lr:
+    crop = _reflect_about_grasp_pixel(crop, False, True)
+  if flip_ud:
+    crop = _reflect_about_grasp_pixel(crop, True, False)
+  return crop
+
+
+@pytest.fixture(scope="session")
+def numpy_symmetric_view():
+  """The NumPy reference of `dexjax.models.symmetry.symmetric_view`'s crop: f(crop, rotate, flip_lr, flip_ud)."""
+  return _numpy_symmetric_view
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _release_compiled_programs():
   """After each test file, drops JAX's compiled programs and traces (jitted functions recompile, or load from the

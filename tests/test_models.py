@@ -122,17 +122,6 @@ def test_im_depth_sub_takes_crops_relative_to_the_grasp_depth():
     GQCNNConfig(input_depth_mode='im_only').validate()
 
 
-def _numpy_view(crop, rotate, flip_lr, flip_ud):
-  """Reference: i -> S - i about the grasp pixel along the flipped axes, row / column 0 (mapped outside) zeroed."""
-  s = crop.shape[0]
-  out = crop.copy()
-  for axis, on in ((0, rotate or flip_ud), (1, rotate or flip_lr)):
-    if on and not (rotate and (flip_ud if axis == 0 else flip_lr)):
-      out = np.take(out, (s - np.arange(s)) % s, axis=axis)
-      out[(0, slice(None)) if axis == 0 else (slice(None), 0)] = 0.0
-  return out
-
-
 @pytest.fixture(scope="module")
 def small_suction_model():
   from dexjax.models import GraspQualityModel, Normalization
@@ -145,7 +134,7 @@ def small_suction_model():
                            gripper='suction', crop_window=8)
 
 
-def test_symmetric_views_average_the_four_reflections_of_each_grasp(small_suction_model):
+def test_symmetric_views_average_the_four_reflections_of_each_grasp(small_suction_model, numpy_symmetric_view):
   """p(success) with ``symmetric_views`` is the mean of the single-view model's p over the identity, the
   180-degree rotation (suction angle negated), the left-right flip and the up-down flip (angle negated), each
   built here in NumPy; it is unchanged when the input itself is one of its views."""
@@ -160,7 +149,7 @@ def test_symmetric_views_average_the_four_reflections_of_each_grasp(small_suctio
   flags = [(False, False, False), (True, False, False), (False, True, False), (False, False, True)]
   expected = np.zeros(5)
   for rotate, flip_lr, flip_ud in flags:
-    view = np.stack([_numpy_view(c, rotate, flip_lr, flip_ud) for c in crops])
+    view = np.stack([numpy_symmetric_view(c, rotate, flip_lr, flip_ud) for c in crops])
     angle = poses[:, 1] * (-1.0 if rotate != flip_ud else 1.0)
     expected += np.asarray(predict(single, jnp.asarray(view), jnp.asarray(np.c_[poses[:, 0], angle]))) / NUM_VIEWS
   got = np.asarray(predict(averaged, jnp.asarray(crops), jnp.asarray(poses)))

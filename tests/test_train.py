@@ -100,29 +100,7 @@ def test_metrics_match_brute_force_definitions():
   assert empty['average_precision'] is None and empty['precision'] is None and empty['recall'] is None
 
 
-def _numpy_transform(crop, rotate, flip_lr, flip_ud):
-  """Reference: explicit pixel loops of the reflections about the grasp pixel (S/2, S/2); outside is 0."""
-  s = crop.shape[0]
-
-  def reflect(img, rows, cols):
-    out = np.zeros_like(img)
-    for r in range(s):
-      for c in range(s):
-        sr, sc = (s - r if rows else r), (s - c if cols else c)
-        if 0 <= sr < s and 0 <= sc < s:
-          out[r, c] = img[sr, sc]
-    return out
-
-  if rotate:
-    crop = reflect(crop, True, True)
-  if flip_lr:
-    crop = reflect(crop, False, True)
-  if flip_ud:
-    crop = reflect(crop, True, False)
-  return crop
-
-
-def test_symmetrize_matches_reflections_about_the_grasp_pixel_and_negates_suction_angles():
+def test_symmetrize_matches_reflections_about_the_grasp_pixel_and_negates_suction_angles(numpy_symmetric_view):
   from dexjax.train.data import symmetrize
   s = 8
   crop = np.arange(1, s * s + 1, dtype=np.float32).reshape(s, s, 1)
@@ -134,7 +112,7 @@ def test_symmetrize_matches_reflections_about_the_grasp_pixel_and_negates_suctio
     out, out_pose = sym(key, jnp.asarray(crop), pose, True)
     flips = tuple(bool(x) for x in np.asarray(jax.random.bernoulli(key, 0.5, (3,))))
     seen.add(flips)
-    np.testing.assert_array_equal(np.asarray(out), _numpy_transform(crop, *flips))
+    np.testing.assert_array_equal(np.asarray(out), numpy_symmetric_view(crop, *flips))
     assert out[s // 2, s // 2, 0] == crop[s // 2, s // 2, 0]  # the grasp pixel stays put
     rotate, _, flip_ud = flips
     assert float(out_pose[1]) == pytest.approx(-0.3 if rotate != flip_ud else 0.3)
