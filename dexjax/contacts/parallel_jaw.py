@@ -51,13 +51,18 @@ class JawContacts:
     return jnp.all(self.found) & ~jnp.any(self.collision)
 
 
-def close_jaws(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJawGripper) -> JawContacts:
-  """Closes both jaws of ``grasp`` on ``model`` and returns the contacts (object frame)."""
+def jaw_lines(grasp: ParallelJawGrasp, gripper: ParallelJawGripper) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """The jaws' lines of action: open positions (2, 3) metres, unit closing directions (2, 3), and the
+  closing length () metres (each jaw sweeps from its open position to ``min_width / 2`` from the centre)."""
   axis = normalize(grasp.axis)
   half = 0.5 * grasp.width
   starts = jnp.stack([grasp.center - half * axis, grasp.center + half * axis])
-  directions = jnp.stack([axis, -axis])
-  length = jnp.maximum(half - 0.5 * gripper.min_width, 0.0)
+  return starts, jnp.stack([axis, -axis]), jnp.maximum(half - 0.5 * gripper.min_width, 0.0)
+
+
+def close_jaws(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJawGripper) -> JawContacts:
+  """Closes both jaws of ``grasp`` on ``model`` and returns the contacts (object frame)."""
+  starts, directions, length = jaw_lines(grasp, gripper)
 
   def one_jaw(start, direction):
     t, hit, inside = first_crossing(model, start, direction, length, gripper.num_line_samples)

@@ -43,6 +43,10 @@ class SealResult:
     lip_hits: () bool, every lip projection ray hits the object.
     no_holes: () bool, every ray inside the lip hits the object below the apex.
     max_strain: () largest relative spring length change (inf where rays miss).
+    contact_margin: () ``contact_tolerance`` minus how far along the approach the ray meets the surface from
+      the grasp centre, metres (-inf when it misses); ``contact_found`` is ``contact_margin >= 0``.
+    hole_margin: () smallest depth of an inner ray's hit below the apex plane, metres (-inf when one misses);
+      ``no_holes`` is ``hole_margin > 0``.
   """
 
   sealed: jax.Array
@@ -52,6 +56,8 @@ class SealResult:
   lip_hits: jax.Array
   no_holes: jax.Array
   max_strain: jax.Array
+  contact_margin: jax.Array
+  hole_margin: jax.Array
 
 
 def _project(model, points, v, back, num_steps, max_depth=jnp.inf):
@@ -74,10 +80,17 @@ def approach_contact(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGr
     found: () bool, the ray hits within ``gripper.contact_tolerance`` of the grasp centre (a hit far in front
       of the centre means the object blocks the approach; far behind, or none, means the centre is off it).
   """
+  hit, margin = _approach_hit(model, grasp, gripper)
+  return hit, margin >= 0.0
+
+
+def _approach_hit(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGripper) -> tuple[jax.Array, jax.Array]:
+  """(first hit (3,) of the approach ray through the grasp centre, contact margin (): ``contact_tolerance`` -
+  |hit depth along the approach from the centre|, -inf for a miss)."""
   v = normalize(grasp.approach)
   back = 2.0 * model.sdf.shape[0] * model.voxel_size  # start outside the grid box
   hit, depth, ok = _project(model, grasp.center[None], v, back, 2 * gripper.num_ray_steps)
-  return hit[0], ok[0] & (jnp.abs(depth[0]) <= gripper.contact_tolerance)
+  return hit[0], jnp.where(ok[0], gripper.contact_tolerance - jnp.abs(depth[0]), -jnp.inf)
 
 
 def suction_seal(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGripper) -> SealResult:
@@ -86,7 +99,8 @@ def suction_seal(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGrippe
   r, h = gripper.cup_radius, gripper.cone_height
   v = normalize(grasp.approach)
   b1, b2 = tangent_basis(v)
-  p, contact_found = approach_contact(model, grasp, gripper)
+  p, contact_margin = _approach_hit(model, grasp, gripper)
+  contact_found = contact_margin >= 0.0
 
   # Lip polygon with q points per edge (vertex first), in the plane through p perpendicular to v.
   angles = 2.0 * jnp.pi * jnp.arange(n) / n
@@ -108,7 +122,8 @@ def suction_seal(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGrippe
   vertex_pts = lip[:, 0]
   delta = jnp.mean(lip_depth[:, 0]) - h
   apex = p + jnp.minimum(delta, 0.0) * v
-  no_holes = jnp.all(inner_hit) & jnp.all(inner_depth > jnp.minimum(delta, 0.0))
+  hole_margin = jnp.where(jnp.all(inner_hit), jnp.min(inner_depth - jnp.minimum(delta, 0.0)), -jnp.inf)
+  no_holes = hole_margin > 0.0
 
   ring = jnp.concatenate([lip.reshape(-1, 3), lip[:1, 0]], axis=0)
   seg = jnp.linalg.norm(ring[1:] - ring[:-1], axis=-1).reshape(n, q)
@@ -121,7 +136,8 @@ def suction_seal(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGrippe
   max_strain = jnp.where(lip_hits, jnp.max(strains), jnp.inf)
   sealed = contact_found & lip_hits & no_holes & (max_strain <= gripper.max_strain)
   return SealResult(sealed=sealed, contact=p, approach=v, contact_found=contact_found, lip_hits=lip_hits,
-                    no_holes=no_holes, max_strain=max_strain)
+                    no_holes=no_holes, max_strain=max_strain, contact_margin=contact_margin,
+                    hole_margin=hole_margin)
 
 
 def suction_wrenches(contact: jax.Array, approach: jax.Array, center_of_mass: jax.Array, friction: jax.Array,

@@ -1,7 +1,9 @@
 """Queries on an `ObjectModel`'s signed distance grid: value, gradient, normal, line and ray marching.
 
 All functions take one point / one line / one ray and are pure, so they `jit`, `vmap` and (where the grid is
-smooth) `grad`. Coordinates are in the object frame, metres. Outside the grid the distance is continued as
+smooth) `grad`. The crossings of `first_crossing` and `ray_cast` carry the implicit-function gradient of a crossing
+on the surface's tangent plane, whatever search found them (`_implicit_root`); their values are the
+search's, bit for bit. Coordinates are in the object frame, metres. Outside the grid the distance is continued as
 ``sdf(clamp(x)) + |x - clamp(x)|`` (an upper bound of the true distance by the triangle inequality, exact
 straight out from a face); signs stay right, and `ray_cast` only steps inside the grid box.
 """
@@ -80,6 +82,20 @@ def _regula_falsi(f, ta, tb, fa, fb, num_iterations: int):
   return _false_position(*jax.lax.fori_loop(0, num_iterations, body, (ta, tb, fa, fb)))
 
 
+def _implicit_root(model: ObjectModel, start: jax.Array, direction: jax.Array, t: jax.Array) -> jax.Array:
+  """``t``, where the line ``start + t direction`` crosses the surface (found by any search), with the gradient
+  of the implicit function theorem on the surface's tangent plane there: the value is ``t`` exactly (the
+  search is not differentiated) and dt = -g . d(start + t direction) / (g . direction), g the interpolated
+  `sdf_gradient` at the crossing (continuous across cells, unlike the derivative of the trilinear distance).
+  A grazing line (|g . direction| < 1e-6) gets no gradient instead of an infinite one."""
+  t = jax.lax.stop_gradient(t)
+  g = jax.lax.stop_gradient(sdf_gradient(model, start + t * direction))
+  height = jnp.dot(g, start + t * direction)
+  slope = jax.lax.stop_gradient(jnp.dot(g, direction))
+  safe = jnp.where(jnp.abs(slope) > 1e-6, slope, jnp.inf)
+  return t - (height - jax.lax.stop_gradient(height)) / safe
+
+
 def first_crossing(model: ObjectModel, start: jax.Array, direction: jax.Array, length: float | jax.Array,
                    num_samples: int, *, exiting: bool = False,
                    num_refine: int = 3) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -112,7 +128,7 @@ def first_crossing(model: ObjectModel, start: jax.Array, direction: jax.Array, l
   k = jnp.maximum(jnp.argmax(beyond), 1)
   hit = jnp.any(beyond) & ~starts_wrong_side
   t = _regula_falsi(f, ts[k - 1], ts[k], phi[k - 1], phi[k], num_refine)
-  return t, hit, starts_wrong_side
+  return _implicit_root(model, start, direction, t), hit, starts_wrong_side
 
 
 def ray_cast(model: ObjectModel, origin: jax.Array, direction: jax.Array, *, num_steps: int = 32,
@@ -154,6 +170,6 @@ def ray_cast(model: ObjectModel, origin: jax.Array, direction: jax.Array, *, num
   phi = sdf_value(model, p)
   slope = jnp.dot(sdf_gradient(model, p), direction)
   step = jnp.clip(-phi / jnp.minimum(slope, -0.1), -model.voxel_size, model.voxel_size)
-  t = t + step
+  t = _implicit_root(model, origin, direction, t + step)
   hit = (phi < min_step) & (t <= t_exit) & (t_enter <= t_exit)
   return t, hit

@@ -14,8 +14,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from dexjax.contacts.parallel_jaw import close_jaws, in_friction_cone, soft_finger_wrenches
-from dexjax.contacts.suction import suction_seal, suction_wrenches
+from dexjax.contacts.parallel_jaw import JawContacts, close_jaws, in_friction_cone, soft_finger_wrenches
+from dexjax.contacts.suction import SealResult, suction_seal, suction_wrenches
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import STANDARD_GRAVITY, ParallelJawGripper, SuctionGripper
@@ -93,6 +93,26 @@ def _scale_torques(wrench: jax.Array, torque_scale) -> jax.Array:
   return jnp.concatenate([wrench[:3], torque_scale * wrench[3:]])
 
 
+def parallel_jaw_residual(model: ObjectModel, contacts: JawContacts, gripper: ParallelJawGripper,
+                          conditions: Conditions, config: QualityConfig = QualityConfig()) -> jax.Array:
+  """() wrench-resistance residual (N) of the soft-finger contacts of a closed parallel-jaw grasp against the
+  external wrench of ``conditions`` (`dexjax.quality.wrench.wrench_residual`)."""
+  wrenches, groups, limits = soft_finger_wrenches(contacts, model.center_of_mass, conditions.friction, gripper,
+                                                  config.torque_scale)
+  target = -_scale_torques(external_wrench(conditions, config), config.torque_scale)
+  return wrench_residual(wrenches, target, groups, limits)
+
+
+def suction_residual(model: ObjectModel, seal: SealResult, gripper: SuctionGripper, conditions: Conditions,
+                     config: QualityConfig = QualityConfig()) -> jax.Array:
+  """() wrench-resistance residual (N) of the suction-ring contact at ``seal``'s contact against the vacuum's
+  pull and the external wrench of ``conditions``."""
+  wrenches, groups, limits, vacuum = suction_wrenches(seal.contact, seal.approach, model.center_of_mass,
+                                                      conditions.friction, gripper, config.torque_scale)
+  target = vacuum - _scale_torques(external_wrench(conditions, config), config.torque_scale)
+  return wrench_residual(wrenches, target, groups, limits)
+
+
 def _outcome(residual, checks, config: QualityConfig) -> GraspOutcome:
   """Combines ordered (failed, code) checks with the residual test into a `GraspOutcome`."""
   failure = jnp.where(residual <= config.tolerance, NONE, NOT_RESISTED)
@@ -123,10 +143,7 @@ def parallel_jaw_quality(model: ObjectModel, grasp: ParallelJawGrasp, gripper: P
   body_collides = jaw_collides(model, grasp, gripper, config.geometry, config.collision_tolerance, jaw_samples)
   in_cone = jax.vmap(in_friction_cone, in_axes=(0, 0, None))(contacts.normals, contacts.directions,
                                                              conditions.friction)
-  wrenches, groups, limits = soft_finger_wrenches(contacts, model.center_of_mass, conditions.friction, gripper,
-                                                  config.torque_scale)
-  target = -_scale_torques(external_wrench(conditions, config), config.torque_scale)
-  residual = wrench_residual(wrenches, target, groups, limits)
+  residual = parallel_jaw_residual(model, contacts, gripper, conditions, config)
   checks = [(jnp.any(contacts.collision) | body_collides, JAW_COLLISION), (~jnp.all(contacts.found), NO_CONTACT),
             (~jnp.all(in_cone), SLIP)]
   return _outcome(residual, checks, config)
@@ -141,9 +158,6 @@ def suction_quality(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGri
   forces and torques (vacuum, friction, torsional friction, elastic limit) balance the external wrench.
   """
   seal = suction_seal(model, grasp, gripper)
-  wrenches, groups, limits, vacuum = suction_wrenches(seal.contact, seal.approach, model.center_of_mass,
-                                                      conditions.friction, gripper, config.torque_scale)
-  target = vacuum - _scale_torques(external_wrench(conditions, config), config.torque_scale)
-  residual = wrench_residual(wrenches, target, groups, limits)
+  residual = suction_residual(model, seal, gripper, conditions, config)
   checks = [(~seal.contact_found, NO_CONTACT), (~seal.sealed, NO_SEAL)]
   return _outcome(residual, checks, config)

@@ -54,7 +54,7 @@ from dexjax.grippers import ParallelJawGripper
 
 __all__ = [
     'GripperGeometry', 'REFINE_DEPTHS', 'REFINED_SAMPLES', 'NEAREST_SAMPLES', 'jaw_solids', 'jaw_collision_points',
-    'jaw_collision_samples', 'jaw_contact_points', 'nearest_jaw_samples', 'jaw_collides', 'suction_collision_points',
+    'jaw_clearance', 'jaw_collision_samples', 'jaw_contact_points', 'nearest_jaw_samples', 'jaw_collides', 'suction_collision_points',
     'suction_contact_points', 'to_world',
 ]
 
@@ -224,11 +224,12 @@ def nearest_jaw_samples(model: ObjectModel, grasp: ParallelJawGrasp, gripper: Pa
   return jax.lax.top_k(-d, min(count, points.shape[0]))[1]
 
 
-def jaw_collides(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJawGripper,
-                 geometry: GripperGeometry, tolerance: float | jax.Array,
-                 samples: jax.Array | None = None) -> jax.Array:
-  """() bool: the open parallel-jaw gripper of ``grasp`` (object frame) overlaps ``model`` by more than
-  ``tolerance`` metres somewhere in its fingers or palm, at the grasp pose or on its approach path.
+def jaw_clearance(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJawGripper,
+                  geometry: GripperGeometry, tolerance: float | jax.Array,
+                  samples: jax.Array | None = None) -> jax.Array:
+  """() smallest signed distance to ``model`` of the open parallel-jaw gripper's tested points, metres
+  (negative: the deepest point inside the object; +inf for point jaws). `jaw_collides` is ``clearance <
+  -tolerance``; differentiable in the grasp pose (the tested points move with it).
 
   Tested points, at `dexjax.grasps.parallel_jaw_pose`: the `jaw_collision_points` (the heap reward's; all K,
   or the static subset of indices ``samples``, e.g. `nearest_jaw_samples` of a nearby pose), and for the
@@ -239,11 +240,9 @@ def jaw_collides(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJ
   than the tolerance only if w > 2 x tolerance; the refined points find walls from about 2.5 tolerances on
   wherever they lie between the samples, which a plain sample grid would need a spacing below w - 2 x tolerance
   for (measured in docs/deviations.md, item 38).
-
-  With ``gripper.finger_thickness == 0`` (point jaws) nothing is tested and the result is False (static).
   """
   if gripper.finger_thickness <= 0:
-    return jnp.asarray(False)
+    return jnp.asarray(jnp.inf, jnp.float32)
   rot, origin = _jaw_frame(grasp)
   points, lows, highs = jaw_collision_samples(gripper, geometry, grasp.width)
   if samples is not None:
@@ -259,7 +258,19 @@ def jaw_collides(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJ
     return jnp.min(jax.vmap(lambda y: sdf_value(model, to_object(y)))(q), initial=jnp.inf)
 
   deep = jax.vmap(refined)(points[nearest], d[nearest], lows[nearest], highs[nearest])
-  return jnp.any(d < -tolerance) | jnp.any(deep < -tolerance)
+  return jnp.minimum(jnp.min(d), jnp.min(deep))
+
+
+def jaw_collides(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJawGripper,
+                 geometry: GripperGeometry, tolerance: float | jax.Array,
+                 samples: jax.Array | None = None) -> jax.Array:
+  """() bool: the open parallel-jaw gripper of ``grasp`` (object frame) overlaps ``model`` by more than
+  ``tolerance`` metres somewhere in its fingers or palm, at the grasp pose or on its approach path: its
+  `jaw_clearance` (same arguments; the tested points are described there) is below ``-tolerance``. With
+  ``gripper.finger_thickness == 0`` (point jaws) nothing is tested and the result is False (static)."""
+  if gripper.finger_thickness <= 0:
+    return jnp.asarray(False)
+  return jaw_clearance(model, grasp, gripper, geometry, tolerance, samples) < -tolerance
 
 
 def suction_collision_points(geometry: GripperGeometry, cup_radius: jax.Array, cup_height: jax.Array) -> jax.Array:

@@ -156,15 +156,20 @@ def perturb_suction_grasp(key: jax.Array, grasp: SuctionGrasp, perturbations: Pe
   return grasp.replace(center=center, approach=dirs[0])
 
 
-def _robust(key, grasp, perturbations, perturb, evaluate) -> RobustQuality:
+def sample_attempt(key: jax.Array, grasp: ParallelJawGrasp | SuctionGrasp,
+                   perturbations: Perturbations) -> tuple[ParallelJawGrasp | SuctionGrasp, Conditions]:
+  """One Monte-Carlo draw of the robust quality: the perturbed grasp and the `Conditions` it is tested under.
+  Every draw is reparameterised (noise drawn independently of the grasp, then added to or rotated onto it),
+  so the draw is differentiable in the grasp for a fixed key."""
+  k_pose, k_cond = jax.random.split(key)
+  conditions = sample_conditions(k_cond, perturbations, normalize(grasp.approach))
+  perturb = perturb_suction_grasp if isinstance(grasp, SuctionGrasp) else perturb_parallel_jaw_grasp
+  return perturb(k_pose, grasp, perturbations), conditions
+
+
+def _robust(key, grasp, perturbations, evaluate) -> RobustQuality:
   keys = jax.random.split(key, perturbations.num_samples)
-
-  def one(k):
-    k_pose, k_cond = jax.random.split(k)
-    conditions = sample_conditions(k_cond, perturbations, normalize(grasp.approach))
-    return evaluate(perturb(k_pose, grasp, perturbations), conditions)
-
-  outcomes = jax.vmap(one)(keys)
+  outcomes = jax.vmap(lambda k: evaluate(*sample_attempt(k, grasp, perturbations)))(keys)
   return RobustQuality(probability=jnp.mean(outcomes.resists.astype(jnp.float32)), outcomes=outcomes)
 
 
@@ -184,7 +189,7 @@ def robust_parallel_jaw_quality(key: jax.Array, model: ObjectModel, grasp: Paral
   if gripper.finger_thickness > 0:
     samples = nearest_jaw_samples(model, grasp, gripper, config.geometry, NEAREST_SAMPLES)
   evaluate = lambda g, c: parallel_jaw_quality(model, g, gripper, c, config, samples)
-  return _robust(key, grasp, perturbations, perturb_parallel_jaw_grasp, evaluate)
+  return _robust(key, grasp, perturbations, evaluate)
 
 
 def robust_suction_quality(key: jax.Array, model: ObjectModel, grasp: SuctionGrasp,
@@ -193,4 +198,4 @@ def robust_suction_quality(key: jax.Array, model: ObjectModel, grasp: SuctionGra
   """Probability that a suction grasp seals and resists gravity plus a random disturbance (Dex-Net 4.0)."""
   perturbations = suction_perturbations() if perturbations is None else perturbations
   evaluate = lambda g, c: suction_quality(model, g, gripper, c, config)
-  return _robust(key, grasp, perturbations, perturb_suction_grasp, evaluate)
+  return _robust(key, grasp, perturbations, evaluate)

@@ -55,8 +55,9 @@ rounding of ||A x - b|| (~1e-7 ||b||): a rounding or convergence error can make 
 Gradients: the solver runs on `jax.lax.stop_gradient` copies of A and b and the residual is recomputed as
 ||A x - b|| at the (constant) minimiser x. Since x >= 0 does not depend on A or b, this is the exact
 gradient of the optimal residual (envelope theorem), it costs one matrix-vector product instead of a
-backward pass through the loop, and it is 0 (not NaN) where the residual is 0. ``x`` itself carries no
-gradient.
+backward pass through the loop, and it is 0 (not NaN) where the residual is 0 or at the float32 noise floor
+(below 1e-5 ||b||, where the residual vector is rounding with a meaningless direction and the true optimum is 0
+nearby). ``x`` itself carries no gradient.
 """
 
 from __future__ import annotations
@@ -82,6 +83,8 @@ DEFAULT_RESIDUAL_TOL = 1e-3
 # this fraction of the column norm, so that a numerically dependent column cannot produce inf or NaN.
 _PIVOT_FLOOR = 1e-6
 _QR_FLOOR = 1e-6
+# Residuals below this fraction of ||b|| (a few hundred times float32 rounding) carry no gradient.
+_GRADIENT_FLOOR = 1e-5
 
 
 @struct.dataclass
@@ -428,7 +431,12 @@ def _nnls_compiled(a: jax.Array, b: jax.Array, tol: jax.Array, num_iterations: i
   better = (jnp.all(jnp.where(state.used, z_qr > 0, True))
             & (_norm(b_const - _matvec(a_const, x_qr)) < _norm(b_const - _matvec(a_const, x))))
   x = jnp.where(better, x_qr, x)
-  return NNLSResult(x=x, residual=_safe_norm(b - _matvec(a, x)), converged=state.done)
+  residual = _safe_norm(b - _matvec(a, x))
+  # At the float32 noise floor the residual vector is rounding and its direction is meaningless, while the true
+  # optimum is 0 in a neighbourhood: no gradient there (the value is unchanged).
+  floor = _GRADIENT_FLOOR * _norm(b_const)
+  residual = jnp.where(residual > floor, residual, jax.lax.stop_gradient(residual))
+  return NNLSResult(x=x, residual=residual, converged=state.done)
 
 
 def lift_bounded_groups(
