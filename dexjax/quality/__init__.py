@@ -6,7 +6,7 @@ from dexjax.quality.grasp_quality import (FAILURE_REASONS, Conditions, GraspOutc
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_SAMPLES, SUPERVISOR_THRESHOLD,
                                    Perturbations, RobustQuality, nominal_conditions, parallel_jaw_perturbations,
                                    perturb_parallel_jaw_grasp, perturb_suction_grasp, robust_parallel_jaw_quality,
-                                   robust_suction_quality, sample_conditions, suction_perturbations,
+                                   robust_suction_quality, sample_attempt, sample_conditions, suction_perturbations,
                                    with_known_friction, with_known_mass)
 from dexjax.quality.gripper_geometry import GripperGeometry, jaw_collides, jaw_collision_points
 from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, RewardParams, RewardRecord, heap_grasp_reward,
@@ -14,6 +14,9 @@ from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, RewardParams
                                         parallel_jaw_collisions, parallel_jaw_heap_reward, stack_models,
                                         suction_collisions, suction_heap_reward)
 from dexjax.quality.wrench import NNLSResult, lift_bounded_groups, nnls, resists, wrench_residual
+from dexjax.quality.smooth import (ParallelJawMargins, Smoothing, SuctionMargins, parallel_jaw_margins,
+                                   smooth_robust_parallel_jaw_quality, smooth_robust_suction_quality, suction_margins)
+from dexjax.quality.grasp_optimization import AscentResult, AscentSettings, move_grasp, optimize_grasp
 
 __all__ = [
     "GraspEvaluation", "evaluate_grasps", "FAILURE_REASONS", "Conditions", "GraspOutcome", "QualityConfig",
@@ -25,4 +28,7 @@ __all__ = [
     "jaw_collision_points", "REWARD_FAILURES",
     "HeapScene", "RewardParams", "RewardRecord", "heap_grasp_reward", "heap_scene", "parallel_jaw_collisions",
     "parallel_jaw_heap_reward", "stack_models", "suction_collisions", "suction_heap_reward",
+    "ParallelJawMargins", "Smoothing", "SuctionMargins", "parallel_jaw_margins", "smooth_robust_parallel_jaw_quality",
+    "smooth_robust_suction_quality", "suction_margins", "AscentResult", "AscentSettings", "move_grasp",
+    "optimize_grasp", "sample_attempt",
 ]
