@@ -52,13 +52,16 @@ def test_first_crossing_finds_cube_face_to_sub_voxel_accuracy(cube):
   for _ in range(20):
     y, z = rng.uniform(-0.015, 0.015, 2)
     start = jnp.array([-0.025, y, z])
-    t, hit, inside = first_crossing(cube, start, jnp.array([1.0, 0.0, 0.0]), 0.025, 32)
+    t, hit, inside, deepest = first_crossing(cube, start, jnp.array([1.0, 0.0, 0.0]), 0.025, 32)
     assert bool(hit) and not bool(inside)
     assert abs(float(t) - 0.005) < 2e-5
-  t, hit, inside = first_crossing(cube, jnp.array([0.0, 0.0, 0.0]), jnp.array([1.0, 0.0, 0.0]), 0.03, 32,
-                                  exiting=True)
+    # the deepest sample is the segment's end (x = 0), HALF - max(|y|, |z|) inside the exact cube
+    assert abs(float(deepest) + (HALF - max(abs(y), abs(z)))) < 2e-4
+  t, hit, inside, deepest = first_crossing(cube, jnp.array([0.0, 0.0, 0.0]), jnp.array([1.0, 0.0, 0.0]), 0.03, 32,
+                                           exiting=True)
   assert bool(hit) and abs(float(t) - HALF) < 2e-5
-  _, hit, inside = first_crossing(cube, jnp.array([-0.01, 0.0, 0.0]), jnp.array([1.0, 0.0, 0.0]), 0.02, 32)
+  assert abs(float(deepest) + (0.03 - HALF)) < 2e-4  # exiting: the farthest sample, 1 cm outside
+  _, hit, inside, _ = first_crossing(cube, jnp.array([-0.01, 0.0, 0.0]), jnp.array([1.0, 0.0, 0.0]), 0.02, 32)
   assert bool(inside) and not bool(hit)
 
 

@@ -49,7 +49,7 @@ def test_crossing_gradients_match_the_exact_sphere(sphere):
   dt/dy = y / sqrt(R^2 - y^2), for the line search and the ray cast alike (implicit gradient on the tangent
   plane of the interpolated normal)."""
   def crossing(y):
-    t, _, _ = first_crossing(sphere, jnp.array([-0.1, y, 0.0]), jnp.array([1.0, 0.0, 0.0]), 0.2, 64)
+    t, _, _, _ = first_crossing(sphere, jnp.array([-0.1, y, 0.0]), jnp.array([1.0, 0.0, 0.0]), 0.2, 64)
     return t
 
   def ray(y):

@@ -37,6 +37,9 @@ class JawContacts:
     directions: (2, 3) unit closing direction of each jaw.
     found: (2,) bool, the jaw met the surface while closing.
     collision: (2,) bool, the open jaw already overlaps the object (the grasp does not fit).
+    deepest: (2,) the smallest signed distance sampled along each jaw's closing segment, metres (< 0: the jaw
+      meets the surface; `dexjax.geometry.first_crossing`), or None where the contacts were not found by
+      closing.
   """
 
   points: jax.Array
@@ -44,6 +47,7 @@ class JawContacts:
   directions: jax.Array
   found: jax.Array
   collision: jax.Array
+  deepest: jax.Array | None = None
 
   @property
   def valid(self) -> jax.Array:
@@ -65,13 +69,13 @@ def close_jaws(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJaw
   starts, directions, length = jaw_lines(grasp, gripper)
 
   def one_jaw(start, direction):
-    t, hit, inside = first_crossing(model, start, direction, length, gripper.num_line_samples)
+    t, hit, inside, deepest = first_crossing(model, start, direction, length, gripper.num_line_samples)
     point = start + t * direction
-    return point, -surface_normal(model, point), hit, inside
+    return point, -surface_normal(model, point), hit, inside, deepest
 
-  points, normals, found, collision = jax.vmap(one_jaw)(starts, directions)
+  points, normals, found, collision, deepest = jax.vmap(one_jaw)(starts, directions)
   return JawContacts(points=points, normals=normals, directions=directions, found=found & ~collision,
-                     collision=collision)
+                     collision=collision, deepest=deepest)
 
 
 def in_friction_cone(normal: jax.Array, direction: jax.Array, friction: jax.Array) -> jax.Array:

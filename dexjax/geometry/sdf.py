@@ -98,7 +98,7 @@ def _implicit_root(model: ObjectModel, start: jax.Array, direction: jax.Array, t
 
 def first_crossing(model: ObjectModel, start: jax.Array, direction: jax.Array, length: float | jax.Array,
                    num_samples: int, *, exiting: bool = False,
-                   num_refine: int = 3) -> tuple[jax.Array, jax.Array, jax.Array]:
+                   num_refine: int = 3) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
   """First surface crossing along the segment ``start + t * direction``, t in [0, length].
 
   The segment is sampled at ``num_samples`` evenly spaced points (static); the first sample on the far side
@@ -118,6 +118,9 @@ def first_crossing(model: ObjectModel, start: jax.Array, direction: jax.Array, l
     t: () distance along the segment of the crossing, metres (undefined when not ``hit``).
     hit: () bool, a crossing was found and the start is on the expected side.
     starts_wrong_side: () bool, the start is already inside (or outside when ``exiting``) the object.
+    deepest: () the smallest sampled signed distance along the segment, metres (negated when ``exiting``): < 0
+      where a sample lies beyond the surface; differentiable in ``start`` and ``direction`` (the samples move
+      with the segment), e.g. a margin of "the segment meets the surface" (`dexjax.quality.smooth`).
   """
   sign = -1.0 if exiting else 1.0
   f = lambda t: sign * sdf_value(model, start + t * direction)
@@ -128,7 +131,7 @@ def first_crossing(model: ObjectModel, start: jax.Array, direction: jax.Array, l
   k = jnp.maximum(jnp.argmax(beyond), 1)
   hit = jnp.any(beyond) & ~starts_wrong_side
   t = _regula_falsi(f, ts[k - 1], ts[k], phi[k - 1], phi[k], num_refine)
-  return _implicit_root(model, start, direction, t), hit, starts_wrong_side
+  return _implicit_root(model, start, direction, t), hit, starts_wrong_side, jnp.min(phi)
 
 
 def ray_cast(model: ObjectModel, origin: jax.Array, direction: jax.Array, *, num_steps: int = 32,

@@ -5,8 +5,9 @@ from dexjax.quality.grasp_quality import (FAILURE_REASONS, Conditions, GraspOutc
                                           external_wrench, parallel_jaw_quality, suction_quality)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_SAMPLES, SUPERVISOR_THRESHOLD,
                                    Perturbations, RobustQuality, nominal_conditions, parallel_jaw_perturbations,
-                                   perturb_parallel_jaw_grasp, perturb_suction_grasp, robust_parallel_jaw_quality,
-                                   robust_suction_quality, sample_attempt, sample_conditions, suction_perturbations,
+                                   map_draws, perturb_parallel_jaw_grasp, perturb_suction_grasp,
+                                   robust_jaw_samples, robust_parallel_jaw_quality, robust_suction_quality,
+                                   sample_attempt, sample_conditions, suction_perturbations,
                                    with_known_friction, with_known_mass)
 from dexjax.quality.gripper_geometry import GripperGeometry, jaw_collides, jaw_collision_points
 from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, RewardParams, RewardRecord, heap_grasp_reward,
@@ -30,5 +31,5 @@ __all__ = [
     "parallel_jaw_heap_reward", "stack_models", "suction_collisions", "suction_heap_reward",
     "ParallelJawMargins", "Smoothing", "SuctionMargins", "parallel_jaw_margins", "smooth_robust_parallel_jaw_quality",
     "smooth_robust_suction_quality", "suction_margins", "AscentResult", "AscentSettings", "move_grasp",
-    "optimize_grasp", "sample_attempt",
+    "optimize_grasp", "sample_attempt", "map_draws", "robust_jaw_samples",
 ]

@@ -18,6 +18,7 @@ Draws are a pure function of the key, so one key gives one answer; batch grasps 
 from __future__ import annotations
 
 import math
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -167,9 +168,27 @@ def sample_attempt(key: jax.Array, grasp: ParallelJawGrasp | SuctionGrasp,
   return perturb(k_pose, grasp, perturbations), conditions
 
 
-def _robust(key, grasp, perturbations, evaluate) -> RobustQuality:
+def map_draws(key: jax.Array, grasp: ParallelJawGrasp | SuctionGrasp, perturbations: Perturbations,
+              evaluate: Callable[[ParallelJawGrasp | SuctionGrasp, Conditions], Any]) -> Any:
+  """``evaluate(perturbed grasp, conditions)`` on each of the ``num_samples`` draws that the robust quality
+  makes from ``key`` (`sample_attempt` of ``split(key, num_samples)``), stacked on a leading axis: the one
+  place that fixes which draws a key means, for the hard quality and its smooth surrogate alike."""
   keys = jax.random.split(key, perturbations.num_samples)
-  outcomes = jax.vmap(lambda k: evaluate(*sample_attempt(k, grasp, perturbations)))(keys)
+  return jax.vmap(lambda k: evaluate(*sample_attempt(k, grasp, perturbations)))(keys)
+
+
+def robust_jaw_samples(model: ObjectModel, grasp: ParallelJawGrasp, gripper: ParallelJawGripper,
+                       config: QualityConfig = QualityConfig()) -> jax.Array | None:
+  """The collision samples every draw of a robust parallel-jaw quality tests: the ``NEAREST_SAMPLES`` (64)
+  `jaw_collision_points` nearest the object at the nominal pose of ``grasp`` (`nearest_jaw_samples`), or None
+  for point jaws (nothing to test; static)."""
+  if gripper.finger_thickness <= 0:
+    return None
+  return nearest_jaw_samples(model, grasp, gripper, config.geometry, NEAREST_SAMPLES)
+
+
+def _robust(key, grasp, perturbations, evaluate) -> RobustQuality:
+  outcomes = map_draws(key, grasp, perturbations, evaluate)
   return RobustQuality(probability=jnp.mean(outcomes.resists.astype(jnp.float32)), outcomes=outcomes)
 
 
@@ -185,9 +204,7 @@ def robust_parallel_jaw_quality(key: jax.Array, model: ObjectModel, grasp: Paral
   (`nearest_jaw_samples`; with point jaws nothing is tested).
   """
   perturbations = parallel_jaw_perturbations() if perturbations is None else perturbations
-  samples = None
-  if gripper.finger_thickness > 0:
-    samples = nearest_jaw_samples(model, grasp, gripper, config.geometry, NEAREST_SAMPLES)
+  samples = robust_jaw_samples(model, grasp, gripper, config)
   evaluate = lambda g, c: parallel_jaw_quality(model, g, gripper, c, config, samples)
   return _robust(key, grasp, perturbations, evaluate)
 

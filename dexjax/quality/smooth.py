@@ -40,8 +40,9 @@ from dexjax.geometry.sdf import sdf_value
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.grasp_quality import Conditions, QualityConfig, parallel_jaw_residual, suction_residual
-from dexjax.quality.gripper_geometry import NEAREST_SAMPLES, jaw_clearance, nearest_jaw_samples
-from dexjax.quality.robust import Perturbations, parallel_jaw_perturbations, sample_attempt, suction_perturbations
+from dexjax.quality.gripper_geometry import jaw_clearance
+from dexjax.quality.robust import (Perturbations, map_draws, parallel_jaw_perturbations, robust_jaw_samples,
+                                   suction_perturbations)
 
 LENGTH, RATIO = 'length', 'ratio'
 
@@ -158,19 +159,14 @@ def parallel_jaw_margins(model: ObjectModel, grasp: ParallelJawGrasp, gripper: P
                          jaw_samples: jax.Array | None = None) -> ParallelJawMargins:
   """The margins of `dexjax.quality.parallel_jaw_quality`'s tests for one grasp and one draw (object frame);
   ``jaw_samples`` as there."""
-  starts, directions, length = jaw_lines(grasp, gripper)
-  ts = jnp.linspace(0.0, 1.0, gripper.num_line_samples)
-
-  def closing(start, direction):
-    return -jnp.min(jax.vmap(lambda t: sdf_value(model, start + t * length * direction))(ts))
-
+  starts, _, _ = jaw_lines(grasp, gripper)
   contacts = close_jaws(model, grasp, gripper)
   cone = jax.vmap(_cone_margin, in_axes=(0, 0, None))(contacts.normals, contacts.directions, conditions.friction)
   residual = parallel_jaw_residual(model, contacts, gripper, conditions, config)
   clearance = jaw_clearance(model, grasp, gripper, config.geometry, config.collision_tolerance, jaw_samples)
   return ParallelJawMargins(jaw_start=jax.vmap(lambda p: sdf_value(model, p))(starts),
                             clearance=clearance + config.collision_tolerance,
-                            closing=jax.vmap(closing)(starts, directions), cone=cone, residual=residual,
+                            closing=-contacts.deepest, cone=cone, residual=residual,
                             tolerance=jnp.asarray(config.tolerance, jnp.float32))
 
 
@@ -199,11 +195,6 @@ def smooth_suction_quality(model: ObjectModel, grasp: SuctionGrasp, gripper: Suc
   return soft_pass(suction_margins(model, grasp, gripper, conditions, config), smoothing)
 
 
-def _mean_over_draws(key, grasp, perturbations, evaluate) -> jax.Array:
-  keys = jax.random.split(key, perturbations.num_samples)
-  return jnp.mean(jax.vmap(lambda k: evaluate(*sample_attempt(k, grasp, perturbations)))(keys))
-
-
 def smooth_robust_parallel_jaw_quality(key: jax.Array, model: ObjectModel, grasp: ParallelJawGrasp,
                                        gripper: ParallelJawGripper = ParallelJawGripper(),
                                        perturbations: Perturbations | None = None,
@@ -213,11 +204,9 @@ def smooth_robust_parallel_jaw_quality(key: jax.Array, model: ObjectModel, grasp
   `dexjax.quality.robust_parallel_jaw_quality` makes from ``key`` (its collision samples too: the nearest
   ones at the nominal pose, chosen without gradient)."""
   perturbations = parallel_jaw_perturbations() if perturbations is None else perturbations
-  samples = None
-  if gripper.finger_thickness > 0:
-    samples = nearest_jaw_samples(model, jax.lax.stop_gradient(grasp), gripper, config.geometry, NEAREST_SAMPLES)
+  samples = robust_jaw_samples(model, jax.lax.stop_gradient(grasp), gripper, config)
   evaluate = lambda g, c: smooth_parallel_jaw_quality(model, g, gripper, c, config, smoothing, samples)
-  return _mean_over_draws(key, grasp, perturbations, evaluate)
+  return jnp.mean(map_draws(key, grasp, perturbations, evaluate))
 
 
 def smooth_robust_suction_quality(key: jax.Array, model: ObjectModel, grasp: SuctionGrasp,
@@ -229,7 +218,7 @@ def smooth_robust_suction_quality(key: jax.Array, model: ObjectModel, grasp: Suc
   `dexjax.quality.robust_suction_quality` makes from ``key``."""
   perturbations = suction_perturbations() if perturbations is None else perturbations
   evaluate = lambda g, c: smooth_suction_quality(model, g, gripper, c, config, smoothing)
-  return _mean_over_draws(key, grasp, perturbations, evaluate)
+  return jnp.mean(map_draws(key, grasp, perturbations, evaluate))
 
 
 __all__ = ['LENGTH', 'RATIO', 'ParallelJawMargins', 'Smoothing', 'SuctionMargins', 'hard_pass',

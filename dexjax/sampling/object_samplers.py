@@ -91,7 +91,7 @@ def sample_antipodal_grasps(key: jax.Array, model: ObjectModel, num_grasps: int,
     rho = sampler.friction * jax.random.uniform(k_rho, ())
     axis = -normalize(n_out + rho * (jnp.cos(psi) * t1 + jnp.sin(psi) * t2))
     start = x1 + 0.5 * model.voxel_size * axis
-    t, exits, _ = first_crossing(model, start, axis, gripper.max_width, gripper.num_line_samples, exiting=True)
+    t, exits, _, _ = first_crossing(model, start, axis, gripper.max_width, gripper.num_line_samples, exiting=True)
     x2 = start + t * axis
     offset = jax.random.uniform(k_app, (), maxval=2.0 * jnp.pi)
     grasp = ParallelJawGrasp(center=0.5 * (x1 + x2), axis=axis, approach=perpendicular(axis, offset),
