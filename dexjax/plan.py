@@ -66,6 +66,9 @@ def _parser() -> argparse.ArgumentParser:
                  help="CEM settings: the seed's (m 3, n 250, c 50, k 5) or gqcnn's Dex-Net 4.0 configs")
   p.add_argument('--num-candidates', type=int, default=400,
                  help='candidates per gripper of the ranking, random and heuristic policies (default 400)')
+  p.add_argument('--polish', type=int, metavar='STEPS', default=0,
+                 help='CEM policies: polish the best grasps with STEPS gradient steps on the GQ-CNN '
+                      '(dexjax.policy.polish; default 0: off)')
   p.add_argument('--seed', type=int, default=0, help='random seed (default 0; plans are repeatable)')
   add_overwrite_flag(p)
   return p
@@ -78,6 +81,11 @@ def _check_args(args: argparse.Namespace) -> None:
     raise ValueError(f'--threshold: expected a positive number of metres, got {args.threshold}')
   if args.depth_scale is not None and not (math.isfinite(args.depth_scale) and args.depth_scale > 0):
     raise ValueError(f'--depth-scale: expected a positive number of metres per unit, got {args.depth_scale}')
+  if args.polish < 0:
+    raise ValueError(f'--polish: expected a number of steps >= 0 (0: off), got {args.polish}')
+  if args.polish and args.policy not in ('ambidextrous', 'parallel_jaw', 'suction'):
+    raise ValueError(f'--polish: only the CEM policies (ambidextrous, parallel_jaw, suction) polish their grasps; '
+                     f'got --policy {args.policy}')
   if args.segment == 'background' and not args.background:
     raise ValueError('--segment background: expected --background EMPTY (a depth image of the empty bin)')
   if args.segmask and (args.background or args.segment not in ('auto',)):
@@ -193,7 +201,9 @@ def main(argv: list[str] | None = None) -> int:
   observation, info = prepare_observation(depth, camera, mask, background=background, segment=args.segment,
                                           threshold=args.threshold)
   models = _load_models(args.model, args.policy)
-  policy = make_policy(args.policy, models, cem=args.cem, num_candidates=args.num_candidates)
+  from dexjax.policy.polish import PolishParams  # pylint: disable=g-import-not-at-top
+  polish = PolishParams(steps=args.polish) if args.polish else None
+  policy = make_policy(args.policy, models, cem=args.cem, num_candidates=args.num_candidates, polish=polish)
   names = [g for g in GRIPPERS if g in {p.gripper for p in policy.policies}]  # the order of the samples
   key = jax.random.key(args.seed)
   start = time.perf_counter()
@@ -206,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
   action = jax.block_until_ready(compiled(key, observation, policy))
   plan_s = time.perf_counter() - start
   plan = _plan_json(action, args.policy, names)
-  plan.update(plan_s=round(plan_s, 4), compile_s=round(compile_s, 3), seed=args.seed, observation=info,
+  plan.update(plan_s=round(plan_s, 4), compile_s=round(compile_s, 3), seed=args.seed, polish_steps=args.polish,
+              observation=info,
               model=(args.model if args.model == 'pretrained' else os.fspath(Path(args.model).absolute()))
               if models else None)
   if world is not None and plan['gripper'] is not None:

@@ -97,6 +97,8 @@ def test_bad_input_gets_one_clear_error(scene, tmp_path, capsys):
       (['--intrinsics', str(tmp_path / 'K_small.json')], '500x500'),
       (['--segmask', str(tmp_path / 'empty.npy')], 'empty'),
       (['--model', str(tmp_path)], 'no saved GQ-CNN'),
+      (['--polish', '-1'], '--polish: expected a number of steps >= 0'),
+      (['--policy', 'ranking', '--polish', '3'], 'only the CEM policies'),
   ]
   for extra, message in cases:
     args = [str(root / 'depth.npy'), '--intrinsics', str(root / 'K.json'), '--model', str(root / 'run'),
@@ -116,15 +118,16 @@ def test_bad_input_gets_one_clear_error(scene, tmp_path, capsys):
 
 
 def test_without_model_the_shipped_models_plan(scene, tmp_path):
-  """A fresh install plans at once: no --model, no training run, no network."""
+  """A fresh install plans at once: no --model, no training run, no network (here with gradient polishing)."""
   root, mask = scene
   before = jax.config.jax_compilation_cache_dir
   assert plan_main([str(root / 'depth.npy'), '--intrinsics', str(root / 'K.json'), '--out', str(tmp_path / 'p.json'),
-                    '--num-candidates', '100']) == 0
+                    '--num-candidates', '100', '--polish', '4']) == 0
   # Compiled plans go to $DEXJAX_CACHE/jax only while the plan compiles: later compilations in this process do not.
   assert jax.config.jax_compilation_cache_dir == before
   plan = json.loads((tmp_path / 'p.json').read_text())
   assert plan['model'] == 'pretrained' and plan['gripper'] in ('parallel_jaw', 'suction')
+  assert plan['polish_steps'] == 4  # the shipped models' best grasps polished by gradient steps
   assert _on_object(plan, mask) and 0.0 <= plan['probability'] <= 1.0
 
 

@@ -4,7 +4,8 @@ Every policy is a pytree called as ``policy(key, observation, samples=False) -> 
 `plan_grasp(key, observation, policy)`): pure, jittable, one observation (`vmap` over keys and observations).
 
 * `CEMPolicy` (`cem_policy`): the Cross-Entropy Method with Gaussian-mixture refitting for one gripper (seed:
-  m = 3, n = 250, c = 50, k = 5, gamma = 0.25; `CEMParams`), the mixture fitted by EM in JAX (`dexjax.policy.gmm`).
+  m = 3, n = 250, c = 50, k = 5, gamma = 0.25; `CEMParams`), the mixture fitted by EM in JAX (`dexjax.policy.gmm`);
+  optionally its best grasps polished by gradient ascent on the GQ-CNN (`PolishParams`, `polish_grasps`).
 * `GreedyComposite`: the ambidextrous choice, the grasp of highest predicted probability across grippers.
 * `RankingPolicy`, `RandomPolicy`, `RandomComposite`: sample-and-rank, and uniformly random baselines.
 * Heuristic scorers (`SuctionPlanarityCentroid`, `ParallelJawForceClosureCentroid`) and `HeuristicComposite`.
@@ -25,6 +26,7 @@ from dexjax.policy.heuristics import (ParallelJawForceClosureCentroid, SuctionPl
                                       composite_heuristic_choice)
 from dexjax.policy.observation import Observation, observation
 from dexjax.policy.preprocess import (background_mask, fit_plane, inpaint_depth, plane_mask, prepare_observation)
+from dexjax.policy.polish import PolishParams, polish_grasps
 from dexjax.policy.presets import POLICY_NAMES, cem_params, default_sampler, make_policy
 from dexjax.policy.ranking import RandomPolicy, RankingPolicy, random_policy, ranking_policy
 from dexjax.policy.scorers import GRIPPERS, GQCNNScorer
@@ -32,6 +34,7 @@ from dexjax.policy.scorers import GRIPPERS, GQCNNScorer
 __all__ = [
     'CEMParams', 'CEMPolicy', 'GRIPPERS', 'GQCNNScorer', 'GaussianMixture', 'GraspAction', 'GreedyComposite',
     'HeuristicComposite', 'Observation', 'POLICY_NAMES', 'ParallelJawForceClosureCentroid', 'PolicySamples',
+    'PolishParams', 'polish_grasps',
     'RandomComposite', 'RandomPolicy', 'RankingPolicy', 'SuctionPlanarityCentroid', 'action_from_grasp',
     'background_mask', 'cem_params', 'cem_policy', 'composite_heuristic_choice', 'default_sampler', 'fit_gaussian_mixture',
     'fit_plane', 'gaussian_mixture_log_likelihood', 'greedy_composite_policy', 'heuristic_composite_policy',

@@ -7,6 +7,8 @@
       fit a k-component Gaussian mixture to F by EM (`dexjax.policy.gmm`: full covariances + reg_covar I)
       G <- c grasps drawn from the mixture (un-z-scored, decoded, invalid ones rejected); Q <- scorer(G)
     return argmax_Q of the last G                (``select='best'``: of every G scored)
+    optionally polish it and the next best of the last G by gradient ascent on Q (``polish``:
+    `dexjax.policy.polish`, learned scorers only) and return the best polished grasp
 
 Defaults are the seed's, the same for both grippers: m = 3, n = 250, c = 50, k = 5, gamma = 0.25
 (`CEMParams()`); gqcnn's Dex-Net 4.0 configs (PJ: n = 128, c = 64; suction: n = 200, c = 50; k =
@@ -31,6 +33,7 @@ from dexjax.policy.candidates import (Sampler, grasp_features, grasps_from_featu
                                       sampler_gripper)
 from dexjax.policy.gmm import fit_gaussian_mixture, sample_gaussian_mixture
 from dexjax.policy.observation import Observation
+from dexjax.policy.polish import PolishParams, polish_grasps
 from dexjax.policy.scorers import PARALLEL_JAW
 from dexjax.sampling.image_samplers import surface_normals
 
@@ -109,11 +112,14 @@ class CEMPolicy:
     scorer: the quality function (`dexjax.policy.scorers`), of the sampler's gripper.
     sampler: the gripper's image sampler; its ``num_grasps`` is replaced by ``cem.num_seed``.
     cem: `CEMParams`.
+    polish: None, or `PolishParams`: the chosen grasp and the next best of the last set (``num_grasps`` in all)
+      are polished by gradient ascent on the scorer (a `GQCNNScorer`), and the best of them is returned.
   """
 
   scorer: Any
   sampler: Sampler
   cem: CEMParams = CEMParams()
+  polish: PolishParams | None = None
 
   @property
   def gripper(self) -> str:
@@ -164,6 +170,18 @@ def _resample(key: jax.Array, observation: Observation, grasps, quality: jax.Arr
   return _take(new, index), kept
 
 
+def _polished(observation: Observation, grasps, quality: jax.Array, chosen, chosen_q: jax.Array, policy: CEMPolicy,
+              normals: jax.Array | None):
+  """(grasp, score) after polishing ``chosen`` and the next best grasps of the last set (`polish_grasps`)."""
+  k = min(policy.polish.num_grasps, quality.shape[0])
+  top_q, top = jax.lax.top_k(quality, k)
+  starts = jax.tree.map(lambda a, c: a.at[0].set(c), _take(grasps, top), chosen)
+  polished, q = polish_grasps(observation, starts, top_q.at[0].set(chosen_q), policy.scorer, policy.sampler,
+                              policy.polish, normals)
+  best = jnp.argmax(q)
+  return _take(polished, best), q[best]
+
+
 def cem_policy(key: jax.Array, observation: Observation, policy: CEMPolicy, samples: bool = False) -> GraspAction:
   """Plans one gripper's grasp on one observation by the Cross-Entropy Method (see the module doc).
 
@@ -175,7 +193,8 @@ def cem_policy(key: jax.Array, observation: Observation, policy: CEMPolicy, samp
       N = max(n, c) grasps).
 
   Returns:
-    The `GraspAction` of highest score in the last set; ``valid`` False when no valid grasp was found.
+    The `GraspAction` of highest score in the last set (polished, with ``policy.polish``); ``valid`` False when no
+    valid grasp was found.
   """
   cem = policy.cem
   sampler = policy.sampler.replace(num_grasps=cem.num_seed)
@@ -201,6 +220,8 @@ def cem_policy(key: jax.Array, observation: Observation, policy: CEMPolicy, samp
   if cem.select == 'best':
     last_ok &= quality[best] >= earlier[1]
   grasp, q = jax.tree.map(lambda a, b: jnp.where(last_ok, a, b), (_take(grasps, best), quality[best]), earlier)
+  if policy.polish is not None:
+    grasp, q = _polished(observation, grasps, quality, grasp, q, policy, normals)
   action = action_from_grasp(observation, grasp, jnp.where(jnp.isfinite(q), q, 0.0), jnp.isfinite(q))
   if samples:
     action = action.replace(samples=jax.tree.map(lambda *xs: jnp.concatenate(xs), *rounds))

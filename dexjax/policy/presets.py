@@ -24,6 +24,7 @@ from dexjax.models.saved import GraspQualityModel
 from dexjax.policy.cem import CEMParams, CEMPolicy
 from dexjax.policy.composite import GreedyComposite, HeuristicComposite, RandomComposite
 from dexjax.policy.heuristics import ParallelJawForceClosureCentroid, SuctionPlanarityCentroid
+from dexjax.policy.polish import PolishParams
 from dexjax.policy.ranking import RandomPolicy, RankingPolicy
 from dexjax.policy.scorers import GRIPPERS, PARALLEL_JAW, SUCTION, GQCNNScorer
 from dexjax.sampling.image_samplers import AntipodalImageSampler, SuctionImageSampler
@@ -31,6 +32,7 @@ from dexjax.sampling.image_samplers import AntipodalImageSampler, SuctionImageSa
 POLICY_NAMES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 'suction_heuristic',
                 'composite_heuristic')
 CEM_PRESETS = ('seed', 'gqcnn')
+CEM_POLICIES = ('ambidextrous', 'parallel_jaw', 'suction')
 RANKING_CANDIDATES = 400
 
 
@@ -75,7 +77,7 @@ def _window(models: Mapping[str, GraspQualityModel], gripper: str) -> int:
 
 
 def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None, *, cem: str = 'seed',
-                num_candidates: int = RANKING_CANDIDATES):
+                num_candidates: int = RANKING_CANDIDATES, polish: PolishParams | None = None):
   """The policy ``name`` (see the module table) as a pytree to pass to `dexjax.policy.plan_grasp`.
 
   Args:
@@ -84,10 +86,12 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
       (`dexjax.models.pretrained`) of the grippers the policy scores with.
     cem: CEM preset, ``'seed'`` or ``'gqcnn'``.
     num_candidates: candidates per gripper of the ranking, random and heuristic policies.
+    polish: None, or `PolishParams`: the CEM policies polish their best grasps by gradient ascent on the GQ-CNN
+      (`dexjax.policy.polish`).
 
   Raises:
     ValueError: unknown name or preset; a model the policy needs is missing (the message names it); a model of
-      the wrong gripper.
+      the wrong gripper; ``polish`` for a policy that is not a CEM policy, or with an invalid field.
   """
   _check_name(name)
   if models is None:
@@ -103,9 +107,14 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
                      f"'<gripper>/best', or that gripper's saved model); have {sorted(models) or 'none'}")
   if num_candidates < 1:
     raise ValueError(f'num_candidates: expected an integer >= 1, got {num_candidates}')
+  if polish is not None:
+    if name not in CEM_POLICIES:
+      raise ValueError(f"polish: only the CEM policies ({', '.join(CEM_POLICIES)}) polish their grasps; "
+                       f"policy {name!r} does not")
+    polish = polish.validate()
   sampler = lambda g, n=num_candidates: default_sampler(g, _window(models, g), n)
-  if name in ('ambidextrous', 'parallel_jaw', 'suction'):
-    subs = tuple(CEMPolicy(GQCNNScorer(models[g]), sampler(g), cem_params(cem, g).validate())
+  if name in CEM_POLICIES:
+    subs = tuple(CEMPolicy(GQCNNScorer(models[g]), sampler(g), cem_params(cem, g).validate(), polish)
                  for g in required_grippers(name))
     return GreedyComposite(subs)
   if name == 'ranking':
@@ -122,5 +131,5 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
                             parallel_jaw=RankingPolicy(ParallelJawForceClosureCentroid(), sampler(PARALLEL_JAW)))
 
 
-__all__ = ['CEM_PRESETS', 'POLICY_NAMES', 'RANKING_CANDIDATES', 'cem_params', 'default_sampler', 'make_policy',
+__all__ = ['CEM_POLICIES', 'CEM_PRESETS', 'POLICY_NAMES', 'RANKING_CANDIDATES', 'cem_params', 'default_sampler', 'make_policy',
            'required_grippers', 'uses_models']

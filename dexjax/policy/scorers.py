@@ -9,6 +9,8 @@ pass through `jax.jit` as arguments: one compilation serves every set of weights
 
 * `GQCNNScorer`: a trained GQ-CNN (`dexjax.models.GraspQualityModel`): each grasp's crop (`model_crop`, the crop
   rule of training) and pose vector ([depth] for the parallel jaw, [depth, approach angle] for suction).
+  Its ``smooth`` method is the same score through bilinear crops, differentiable in the grasp: a scorer with a
+  ``smooth(observation, grasps)`` method can be polished by gradient ascent (`dexjax.policy.polish`).
 * The heuristic scorers of the baselines live in `dexjax.policy.heuristics`.
 """
 
@@ -20,7 +22,7 @@ from flax import struct
 
 from dexjax.models.saved import GraspQualityModel
 from dexjax.policy.observation import Observation
-from dexjax.sampling.crops import model_crop
+from dexjax.sampling.crops import grasp_crop, model_crop
 from dexjax.sampling.image_grasps import ImageParallelJawGrasp, ImageSuctionGrasp
 
 PARALLEL_JAW, SUCTION = 'parallel_jaw', 'suction'
@@ -58,6 +60,15 @@ class GQCNNScorer:
   def __call__(self, observation: Observation, grasps: ImageParallelJawGrasp | ImageSuctionGrasp) -> jax.Array:
     """(N,) p(success) of N grasps; NaN-free (invalid grasps are the caller's to mask)."""
     return self.model(self.crops(observation, grasps), pose_inputs(grasps))
+
+  def smooth(self, observation: Observation, grasps: ImageParallelJawGrasp | ImageSuctionGrasp) -> jax.Array:
+    """(N,) p(success) of N grasps read through bilinear crops of the model's window, differentiable in the
+    grasps' centre, angle and depth (`dexjax.policy.polish`). The same as calling the scorer for a model whose
+    window is resampled (``crop_window != crop_size``); for gqcnn's nearest-pixel warp, its interpolated version."""
+    window, size = self.model.crop_window, self.model.config.crop_size
+    depth = jnp.nan_to_num(observation.depth, nan=0.0)
+    crop = jax.vmap(lambda c, a: grasp_crop(depth, c, a, window, size / window, 'bilinear'))
+    return self.model(crop(grasps.center, grasps.angle)[..., None], pose_inputs(grasps))
 
 
 __all__ = ['GRIPPERS', 'PARALLEL_JAW', 'SUCTION', 'GQCNNScorer', 'pose_inputs']

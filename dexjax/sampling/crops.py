@@ -44,7 +44,7 @@ def grasp_crop(depth: jax.Array, center: jax.Array, angle: jax.Array, crop_size:
   if interpolation == 'nearest':
     return _sample_nearest(depth, uv)
   if interpolation == 'bilinear':
-    return _sample_bilinear(depth, uv)
+    return sample_bilinear(depth, uv)
   raise ValueError(f"interpolation must be 'nearest' or 'bilinear', got {interpolation!r}")
 
 
@@ -69,7 +69,9 @@ def _sample_nearest(image: jax.Array, uv: jax.Array) -> jax.Array:
   return _read(image, col, row)
 
 
-def _sample_bilinear(image: jax.Array, uv: jax.Array) -> jax.Array:
+def sample_bilinear(image: jax.Array, uv: jax.Array) -> jax.Array:
+  """``image`` (H, W) read at continuous (u, v) pixels ``uv`` (..., 2) by bilinear interpolation (pixel centres
+  at integer coordinates, 0 outside the image): differentiable in ``uv`` (piecewise linear) and in the image."""
   u0, v0 = jnp.floor(uv[..., 0]), jnp.floor(uv[..., 1])
   fu, fv = uv[..., 0] - u0, uv[..., 1] - v0
   c0, r0 = u0.astype(jnp.int32), v0.astype(jnp.int32)
