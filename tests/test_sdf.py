@@ -73,7 +73,7 @@ def test_ray_cast_matches_exact_mesh_intersection(sphere):
   targets = rng.uniform(-0.035, 0.035, (200, 3))
   dirs = targets - origins
   dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-  t, hit = jax.jit(jax.vmap(lambda o, d: ray_cast(sphere, o, d, num_steps=48)))(
+  t, hit, nearest = jax.jit(jax.vmap(lambda o, d: ray_cast(sphere, o, d, num_steps=48)))(
       jnp.asarray(origins, jnp.float32), jnp.asarray(dirs, jnp.float32))
   locs, ray_idx, _ = mesh.ray.intersects_location(origins, dirs, multiple_hits=False)
   ref_t = np.full(200, np.inf)
@@ -86,6 +86,14 @@ def test_ray_cast_matches_exact_mesh_intersection(sphere):
   both = np.asarray(hit) & ref_hit & clear
   assert both.sum() > 50
   np.testing.assert_allclose(np.asarray(t)[both], ref_t[both], atol=2e-4)
+  # A miss reports its closest marching point to the sphere: never nearer than the exact closest approach (the
+  # line's distance from the centre minus R), and within 0.3 mm of it for near misses (the ones a margin needs).
+  missed = ~np.asarray(hit) & clear
+  exact, sampled = closest[missed] - 0.03, np.asarray(nearest)[missed]
+  assert missed.sum() > 20 and np.sum(exact < 0.005) > 5
+  assert np.all(sampled >= exact - 1e-4)
+  np.testing.assert_allclose(sampled[exact < 0.005], exact[exact < 0.005], atol=3e-4)
+  assert np.all(np.asarray(nearest)[np.asarray(hit)] < 0.1 * sphere.voxel_size)  # a hit: within the step floor
 
 
 def test_sdf_value_is_differentiable_inside_and_outside_the_grid(cube):

@@ -280,6 +280,13 @@ def test_margins_are_the_hard_tests(box):
   off = margins(box, SuctionGrasp(center=jnp.array([0.09, 0.0, 0.02]), approach=jnp.array([0.0, 0.0, -1.0])),
                         SuctionGripper(), cond)
   assert float(off.contact) < 0 and float(soft_pass(off, Smoothing(0.0))) == 0.0
+  # A cup 5 mm from the +x edge overhangs it by 5 mm: the lip margin is minus that overhang (the ray through the
+  # farthest lip point passes the side face at that distance), and the smooth pass climbs back onto the face.
+  over = lambda x: SuctionGrasp(center=jnp.array([x, 0.0, 0.02]), approach=jnp.array([0.0, 0.0, -1.0]))
+  edge = margins(box, over(0.035), SuctionGripper(), cond)
+  assert -0.0055 < float(edge.lip) < -0.0035 and float(soft_pass(edge, Smoothing(0.0))) == 0.0
+  slope = jax.grad(lambda x: soft_pass(suction_margins(box, over(x), SuctionGripper(), cond)))(0.035)
+  assert float(slope) < 0  # inwards (-x) raises it
   inside = ParallelJawGrasp(center=jnp.zeros(3), axis=jnp.array([1.0, 0.0, 0.0]), approach=jnp.array([0.0, 0.0, -1.0]),
                             width=jnp.float32(0.05))
   m = jax.jit(parallel_jaw_margins)(box, inside, ParallelJawGripper(), cond)

@@ -45,8 +45,11 @@ class SealResult:
     max_strain: () largest relative spring length change (inf where rays miss).
     contact_margin: () ``contact_tolerance`` minus how far along the approach the ray meets the surface from
       the grasp centre, metres (-inf when it misses); ``contact_found`` is ``contact_margin >= 0``.
-    hole_margin: () smallest depth of an inner ray's hit below the apex plane, metres (-inf when one misses);
-      ``no_holes`` is ``hole_margin > 0``.
+    hole_margin: () smallest depth of an inner ray's hit below the apex plane, metres; where inner rays miss,
+      minus the largest closest approach of a missing one to the surface (< 0); ``no_holes`` is
+      ``hole_margin > 0``.
+    lip_margin: () +inf when every lip ray hits (``lip_hits``); else minus the largest closest approach of a
+      missing lip ray to the surface, metres (< 0: how far the lip overhangs; differentiable in the grasp).
   """
 
   sealed: jax.Array
@@ -58,18 +61,20 @@ class SealResult:
   max_strain: jax.Array
   contact_margin: jax.Array
   hole_margin: jax.Array
+  lip_margin: jax.Array
 
 
 def _project(model, points, v, back, num_steps, max_depth=jnp.inf):
   """Projects ``points`` (k, 3) along ``v`` from ``back`` behind them; a hit deeper than ``max_depth`` past the
-  points is a miss. Returns hit points (k, 3), depth along v relative to the points (k,), hit (k,)."""
+  points is a miss. Returns hit points (k, 3), depth along v relative to the points (k,), hit (k,), and each
+  ray's closest sampled distance to the surface (k,) (`ray_cast`)."""
   origins = points - back * v
 
   def one(o):
     return ray_cast(model, o, v, num_steps=num_steps, max_distance=back + max_depth)
 
-  t, hit = jax.vmap(one)(origins)
-  return origins + t[:, None] * v, t - back, hit
+  t, hit, closest = jax.vmap(one)(origins)
+  return origins + t[:, None] * v, t - back, hit, closest
 
 
 def approach_contact(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGripper) -> tuple[jax.Array, jax.Array]:
@@ -89,7 +94,7 @@ def _approach_hit(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGripp
   |hit depth along the approach from the centre|, -inf for a miss)."""
   v = normalize(grasp.approach)
   back = 2.0 * model.sdf.shape[0] * model.voxel_size  # start outside the grid box
-  hit, depth, ok = _project(model, grasp.center[None], v, back, 2 * gripper.num_ray_steps)
+  hit, depth, ok, _ = _project(model, grasp.center[None], v, back, 2 * gripper.num_ray_steps)
   return hit[0], jnp.where(ok[0], gripper.contact_tolerance - jnp.abs(depth[0]), -jnp.inf)
 
 
@@ -111,18 +116,21 @@ def suction_seal(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGrippe
   # surface outside that slab strains the cone springs by far more than 10 % (or breaks the seal) anyway,
   # and a ray that starts inside the object reports a hit at the start, which fails the strain test.
   reach = h + r
-  lip, lip_depth, lip_hit = _project(model, p + chord.reshape(-1, 3), v, reach, gripper.num_ray_steps, reach)
+  lip, lip_depth, lip_hit, lip_closest = _project(model, p + chord.reshape(-1, 3), v, reach, gripper.num_ray_steps,
+                                                   reach)
   lip_depth = lip_depth.reshape(n, q)
   lip = lip.reshape(n, q, 3)
   lip_hits = jnp.all(lip_hit)
+  lip_margin = jnp.min(jnp.where(lip_hit, jnp.inf, -jnp.maximum(lip_closest, 1e-9)))
 
   inner = p + 0.5 * verts
-  _, inner_depth, inner_hit = _project(model, inner, v, reach, gripper.num_ray_steps, reach)
+  _, inner_depth, inner_hit, inner_closest = _project(model, inner, v, reach, gripper.num_ray_steps, reach)
 
   vertex_pts = lip[:, 0]
   delta = jnp.mean(lip_depth[:, 0]) - h
   apex = p + jnp.minimum(delta, 0.0) * v
-  hole_margin = jnp.where(jnp.all(inner_hit), jnp.min(inner_depth - jnp.minimum(delta, 0.0)), -jnp.inf)
+  inner_missed = jnp.min(jnp.where(inner_hit, jnp.inf, -jnp.maximum(inner_closest, 1e-9)))
+  hole_margin = jnp.where(jnp.all(inner_hit), jnp.min(inner_depth - jnp.minimum(delta, 0.0)), inner_missed)
   no_holes = hole_margin > 0.0
 
   ring = jnp.concatenate([lip.reshape(-1, 3), lip[:1, 0]], axis=0)
@@ -137,7 +145,7 @@ def suction_seal(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGrippe
   sealed = contact_found & lip_hits & no_holes & (max_strain <= gripper.max_strain)
   return SealResult(sealed=sealed, contact=p, approach=v, contact_found=contact_found, lip_hits=lip_hits,
                     no_holes=no_holes, max_strain=max_strain, contact_margin=contact_margin,
-                    hole_margin=hole_margin)
+                    hole_margin=hole_margin, lip_margin=lip_margin)
 
 
 def suction_wrenches(contact: jax.Array, approach: jax.Array, center_of_mass: jax.Array, friction: jax.Array,

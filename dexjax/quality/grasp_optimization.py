@@ -13,7 +13,9 @@ of the expectation), and projects after every step:
 
 `optimize_grasp` takes one grasp; batch starting grasps with `jax.vmap` (one compiled program). The best
 iterate by the smooth quality on the step's draws is returned along with the final one; judge them with the
-hard robust quality and independent draws.
+hard robust quality and independent draws. The final grasp is the better default: with 10 draws per step the
+"best" iterate is partly the one whose draws were lucky (on an unseen object, 32 starts, 20 steps: hard robust
+probability 0.334 -> 0.403 final, 0.372 best; comparing the iterates on one common set of draws instead gave 0.377).
 """
 
 from __future__ import annotations

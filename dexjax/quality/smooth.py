@@ -8,7 +8,7 @@ passes at m >= 0 (`parallel_jaw_margins`, `suction_margins`):
   closing (minus the smallest signed distance along its segment, m); each line of action is inside its
   friction cone (mu (d . n) - |d x n|, a ratio); the wrench residual r is within the tolerance (N).
 * suction: the approach ray meets the surface near the grasp centre (`SealResult.contact_margin`, m); every
-  lip ray hits (a yes / no test, margin +-inf); no holes (`SealResult.hole_margin`, m); every spring within
+  lip ray hits (+inf, else minus the largest distance by which a lip ray misses the surface, m); no holes (`SealResult.hole_margin`, m); every spring within
   its strain limit (max_strain - strain, a ratio); the residual (N).
 
 The smooth pass of one draw is the product of sigmoid(m / (temperature * scale)) over the margins, with one
@@ -23,7 +23,7 @@ Gradients: contact points carry the implicit-function gradient of the surface cr
 normals are the interpolated gradient of the signed distance (continuous across cells), the residual's gradient
 is the envelope theorem's (`dexjax.quality.wrench`), and the gripper's float fields (force limit, cup radius,
 vacuum, ...) and the perturbations' (friction mean, mass mean) are pytree leaves. Where a test is decided by
-geometry that is not smooth (an edge, a lip ray leaving the object) the gradient is that of the piecewise
+geometry that is not smooth (an edge, the last lip ray coming onto the object) the gradient is that of the piecewise
 smooth function on the current side. Functions take one grasp; batch them with `jax.vmap`.
 """
 
@@ -100,9 +100,11 @@ class SuctionMargins:
 
   Attributes:
     contact: () `SealResult.contact_margin`, metres (the approach meets the surface at the grasp centre).
-    lip: () +inf if every lip ray hits the object, else -inf (a yes / no test).
+    lip: () `SealResult.lip_margin`, metres: +inf if every lip ray hits the object, else minus how far the
+      farthest-missing lip ray passes from the surface.
     holes: () `SealResult.hole_margin`, metres (no hole under the cup).
-    strain: () the gripper's strain limit minus the largest spring strain.
+    strain: () the gripper's strain limit minus the largest spring strain (0 where a lip ray misses: the lip
+      margin decides).
     residual: () wrench residual, newtons (`dexjax.quality.wrench`).
     tolerance: () the residual's tolerance, newtons.
   """
@@ -175,8 +177,10 @@ def suction_margins(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGri
   """The margins of `dexjax.quality.suction_quality`'s tests for one grasp and one draw (object frame)."""
   seal = suction_seal(model, grasp, gripper)
   residual = suction_residual(model, seal, gripper, conditions, config)
-  return SuctionMargins(contact=seal.contact_margin, lip=jnp.where(seal.lip_hits, jnp.inf, -jnp.inf),
-                        holes=seal.hole_margin, strain=gripper.max_strain - seal.max_strain, residual=residual,
+  # Where a lip ray misses there are no spring lengths: the strain test is left to the lip margin (0 here).
+  strain = jnp.where(seal.lip_hits, gripper.max_strain - seal.max_strain, 0.0)
+  return SuctionMargins(contact=seal.contact_margin, lip=seal.lip_margin, holes=seal.hole_margin, strain=strain,
+                        residual=residual,
                         tolerance=jnp.asarray(config.tolerance, jnp.float32))
 
 
