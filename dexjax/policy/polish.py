@@ -13,10 +13,12 @@ grasp's pixel, angle and depth. `polish_grasps` follows it from K starting grasp
   over the K grasps (each term depends on its own offsets only, so Adam, elementwise, polishes each alone);
 * every step is projected onto a trust region around its start (``max_shift`` px, ``max_rotation`` rad,
   ``max_depth_change`` m);
-* after every step the iterate is decoded as the policy decodes its samples (`grasps_from_features`: suction
-  centres on integer pixels, the parallel-jaw depth clipped to the sampler's range, the validity masks: border,
-  segmentation mask, defined normals and approach cone) and scored by the policy's own scorer; each grasp keeps
-  its best valid iterate, and the start when none beats it. Polishing never lowers a grasp's score.
+* each grasp keeps the iterate of highest smooth probability among those that decode to a valid grasp as the
+  policy decodes its samples (`grasps_from_features`: suction centres on integer pixels, the parallel-jaw depth
+  clipped to the sampler's range, the validity masks: border, segmentation mask, defined normals and approach
+  cone); that decoded grasp is scored by the policy's own scorer and replaces the start only if it scores higher.
+  Polishing never lowers a grasp's score, and costs ``steps + 1`` forward and backward passes of K grasps and one
+  forward pass.
 
 The ascent follows the scorer's ``smooth`` method (`GQCNNScorer.smooth`: the network through bilinear crops of
 its window; the exact score for resampled windows, an interpolated one for gqcnn's nearest-pixel warp, which is
@@ -154,8 +156,8 @@ def polish_grasps(observation: Observation, grasps: ImageGrasp, quality: jax.Arr
     normals: (H, W, 3) the observation's `surface_normals` (suction; computed here if not given).
 
   Returns:
-    (grasps (K,), quality (K,)): each grasp's best valid iterate by ``scorer`` and its score, or the start and
-    ``quality`` where no iterate beat it; so the returned quality is >= ``quality`` elementwise.
+    (grasps (K,), quality (K,)): each grasp's best valid iterate (decoded) and its score by ``scorer``, or the
+    start and ``quality`` where it does not score higher; so the returned quality is >= ``quality`` elementwise.
   """
   if not callable(getattr(scorer, 'smooth', None)):
     raise TypeError(f'polish: the scorer needs a differentiable smooth(observation, grasps) method (as '
@@ -163,26 +165,33 @@ def polish_grasps(observation: Observation, grasps: ImageGrasp, quality: jax.Arr
   if isinstance(grasps, ImageSuctionGrasp) and normals is None:
     normals = surface_normals(observation.camera, observation.depth)
   start = jax.tree.map(jax.lax.stop_gradient, grasps)
-  objective = lambda x: -jnp.sum(_logit(scorer.smooth(observation,
-                                                      moved_grasps(observation, start, x, params, normals))))
+  moved = lambda x: moved_grasps(observation, start, x, params, normals)
+
+  def objective(x):
+    p = scorer.smooth(observation, moved(x))
+    return -jnp.sum(_logit(p)), p
+
+  value_and_grad = jax.value_and_grad(objective, has_aux=True)
   optimizer = optax.adam(params.learning_rate)
   x0 = jnp.zeros((quality.shape[0], _num_variables(grasps)), jnp.float32)
   started = jnp.isfinite(quality)
 
   def step(carry, _):
-    x, state, best, best_q = carry
-    g = jax.grad(objective)(x)
-    g = jnp.where(jnp.isfinite(g), g, 0.0)
-    updates, state = optimizer.update(g, state, x)
-    x = _project(optax.apply_updates(x, updates), grasps, params)
-    candidate, ok = _decoded(observation, moved_grasps(observation, start, x, params, normals), sampler, normals)
-    q = jnp.where(ok & started, scorer(observation, candidate), -jnp.inf)
-    better = q > best_q
-    return (x, state, _choose(better, candidate, best), jnp.where(better, q, best_q)), None
+    x, state, best_x, best_p = carry
+    (_, p), g = value_and_grad(x)
+    p = jnp.where(_decoded(observation, moved(x), sampler, normals)[1] & started, p, -jnp.inf)
+    better = p > best_p
+    best_x, best_p = jnp.where(better[:, None], x, best_x), jnp.where(better, p, best_p)
+    updates, state = optimizer.update(jnp.where(jnp.isfinite(g), g, 0.0), state, x)
+    return (_project(optax.apply_updates(x, updates), grasps, params), state, best_x, best_p), None
 
-  init = (x0, optimizer.init(x0), start, quality)
-  (_, _, best, best_q), _ = jax.lax.scan(step, init, None, length=params.steps)
-  return best, best_q
+  # steps + 1 evaluations: the start and every step's iterate (the last evaluation's update is not used).
+  init = (x0, optimizer.init(x0), x0, jnp.full(quality.shape, -jnp.inf))
+  (_, _, best_x, _), _ = jax.lax.scan(step, init, None, length=params.steps + 1, unroll=True)
+  candidate, ok = _decoded(observation, moved(best_x), sampler, normals)
+  q = jnp.where(ok & started, scorer(observation, candidate), -jnp.inf)
+  better = q > quality
+  return _choose(better, candidate, grasps), jnp.where(better, q, quality)
 
 
 __all__ = ['PolishParams', 'moved_grasps', 'polish_grasps']
