@@ -77,6 +77,29 @@ def numpy_symmetric_view():
   return _numpy_symmetric_view
 
 
+def _notebook_code(name: str, replacements: dict[str, str] | None = None) -> str:
+  """The code cells of ``notebooks/<name>`` in order, shell and magic lines dropped, with each ``full: reduced``
+  replacement applied (each ``full`` must occur: a renamed setting fails the test instead of running it full size)."""
+  import json  # pylint: disable=import-outside-toplevel
+  import pathlib  # pylint: disable=import-outside-toplevel
+  path = pathlib.Path(__file__).parent.parent / "notebooks" / name
+  lines = []
+  for cell in json.loads(path.read_text())["cells"]:
+    if cell["cell_type"] == "code":
+      lines += [l for l in "".join(cell["source"]).splitlines() if not l.lstrip().startswith(("%", "!"))]
+  src = "\n".join(lines)
+  for full, reduced in (replacements or {}).items():
+    assert full in src, f"{name}: {full!r} not found"
+    src = src.replace(full, reduced)
+  return src
+
+
+@pytest.fixture(scope="session")
+def notebook_code():
+  """f(name, replacements) -> the code of a notebook in ``notebooks/`` (small settings substituted)."""
+  return _notebook_code
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _release_compiled_programs():
   """After each test file, drops JAX's compiled programs and traces (jitted functions recompile, or load from the

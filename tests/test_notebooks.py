@@ -2,31 +2,16 @@
 
 from __future__ import annotations
 
-import json
-import pathlib
-
 import matplotlib
 import numpy as np
 
-NOTEBOOKS = pathlib.Path(__file__).parent.parent / "notebooks"
 
-
-def _code(path: pathlib.Path) -> str:
-  cells = json.loads(path.read_text())["cells"]
-  lines = []
-  for cell in cells:
-    if cell["cell_type"] == "code":
-      lines += [l for l in "".join(cell["source"]).splitlines() if not l.lstrip().startswith(("%", "!"))]
-  return "\n".join(lines)
-
-
-def test_grasp_quality_notebook_runs(cache_dir, monkeypatch):
+def test_grasp_quality_notebook_runs(cache_dir, monkeypatch, notebook_code):
   monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
   matplotlib.use("Agg")
-  src = _code(NOTEBOOKS / "grasp_quality.ipynb")
-  assert "N = 2000" in src
+  src = notebook_code("grasp_quality.ipynb", {"N = 2000": "N = 64"})
   scope: dict = {}
-  exec(compile(src.replace("N = 2000", "N = 64"), "grasp_quality.ipynb", "exec"), scope)
+  exec(compile(src, "grasp_quality.ipynb", "exec"), scope)
   p = scope["p_suction"]
   finite = p[~np.isnan(p)]
   assert p.shape == (64,) and finite.size > 32 and np.all((finite >= 0) & (finite <= 1))
@@ -34,7 +19,7 @@ def test_grasp_quality_notebook_runs(cache_dir, monkeypatch):
   assert float(probs[0]) >= 0.5 and float(probs[-1]) <= 0.2  # light objects hold, past the payload they drop
 
 
-def test_policy_notebook_runs(cache_dir, monkeypatch):
+def test_policy_notebook_runs(cache_dir, monkeypatch, notebook_code):
   """Every policy plans a grasp on an object of the rendered heap; the CEM keeps m + 1 rounds of samples; a noisy
   image with holes is prepared (inpainted, background-segmented) and planned on. Small CEM and candidate counts."""
   import jax
@@ -43,12 +28,9 @@ def test_policy_notebook_runs(cache_dir, monkeypatch):
   monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
   monkeypatch.delenv("DEXJAX_MODEL", raising=False)  # the shipped models
   matplotlib.use("Agg")
-  src = _code(NOTEBOOKS / "policy.ipynb")
   small = {"NUM_SEED = 250": "NUM_SEED = 40", "NUM_RESAMPLE = 50": "NUM_RESAMPLE = 16",
            "NUM_ITERATIONS = 3": "NUM_ITERATIONS = 1", "NUM_CANDIDATES = 400": "NUM_CANDIDATES = 48"}
-  for full, reduced in small.items():
-    assert full in src
-    src = src.replace(full, reduced)
+  src = notebook_code("policy.ipynb", small)
   scope: dict = {}
   exec(compile(src, "policy.ipynb", "exec"), scope)
 
@@ -92,16 +74,13 @@ def test_policy_notebook_runs(cache_dir, monkeypatch):
   assert jax.tree.structure(real_obs) == jax.tree.structure(scope["obs"])
 
 
-def test_analysis_notebook_runs(cache_dir, monkeypatch):
+def test_analysis_notebook_runs(cache_dir, monkeypatch, notebook_code):
   """Fig. S1 on the shipped models: filters, top-activating crops and a t-SNE per layer for both grippers, and the
   notebook's verdict on the seed's finding. Few images and examples."""
   monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
   matplotlib.use("Agg")
-  src = _code(NOTEBOOKS / "analysis.ipynb")
   small = {"NUM_IMAGES = 48": "NUM_IMAGES = 16", "NUM_TSNE = 1000": "NUM_TSNE = 150", "TOP_K = 8": "TOP_K = 3"}
-  for full, reduced in small.items():
-    assert full in src
-    src = src.replace(full, reduced)
+  src = notebook_code("analysis.ipynb", small)
   shown = []
   scope: dict = {"display": shown.append}
   exec(compile(src, "analysis.ipynb", "exec"), scope)
@@ -116,16 +95,13 @@ def test_analysis_notebook_runs(cache_dir, monkeypatch):
   assert set(scope["verdict"]) == {"parallel_jaw", "suction"}
 
 
-def test_benchmark_notebook_runs(cache_dir, monkeypatch):
+def test_benchmark_notebook_runs(cache_dir, monkeypatch, notebook_code):
   """A tiny benchmark: both judges on every attempt, the table, the figures and the judges' confusion counts."""
   monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
   matplotlib.use("Agg")
-  src = _code(NOTEBOOKS / "benchmark.ipynb")
   small = {"PER_TRIAL = 6": "PER_TRIAL = 2", "TRIALS = 2": "TRIALS = 1", "MAX_ATTEMPTS = 12": "MAX_ATTEMPTS = 3",
            'POLICIES = ["ambidextrous", "suction_heuristic", "random"]': 'POLICIES = ["ambidextrous", "random"]'}
-  for full, reduced in small.items():
-    assert full in src
-    src = src.replace(full, reduced)
+  src = notebook_code("benchmark.ipynb", small)
   scope: dict = {}
   exec(compile(src, "benchmark.ipynb", "exec"), scope)
   results, records = scope["results"], scope["records"]

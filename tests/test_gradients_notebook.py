@@ -1,0 +1,32 @@
+"""``notebooks/gradients.ipynb`` runs top to bottom with small settings (its own file so that pytest-xdist's
+``--dist loadfile`` runs it beside, not after, the other notebooks: it compiles several gradient programs)."""
+
+from __future__ import annotations
+
+import matplotlib
+import numpy as np
+
+
+def test_gradients_notebook_runs(cache_dir, monkeypatch, notebook_code):
+  """The landscape is a probability with finite gradients, higher on the top face's middle than at its edge, where
+  the ascent direction points inwards; T = 0 is the hard quality; the ascent runs on both grippers; the cup-radius
+  sweep has finite derivatives."""
+  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
+  matplotlib.use("Agg")
+  small = {"GRID = 21": "GRID = 5", "NUM_STARTS = 32": "NUM_STARTS = 8", "DRAWS = 100": "DRAWS = 50"}
+  scope: dict = {}
+  exec(compile(notebook_code("gradients.ipynb", small), "gradients.ipynb", "exec"), scope)
+
+  value, grad = scope["landscapes"]["suction"]
+  assert value.shape == (5, 5) and grad.shape == (5, 5, 2)
+  assert np.all((value >= 0) & (value <= 1)) and np.all(np.isfinite(grad))
+  middle, edge = value[2, 2], value[2, 4]  # x = 0 and x = 3.9 cm (the cup overhangs the +x edge)
+  assert middle > edge + 0.1, (middle, edge)
+  assert grad[2, 4, 0] < 0  # at the +x edge, the ascent direction points to -x
+  pj_value, pj_grad = scope["landscapes"]["parallel jaw"]
+  assert np.all((pj_value >= 0) & (pj_value <= 1)) and np.all(np.isfinite(pj_grad)) and pj_value.max() > 0.1
+
+  assert scope["smooth"][-1] == scope["hard_q"]  # T = 0 is the hard metric exactly
+  for before, after in scope["results"].values():  # (whether ascent helps: test_smooth_quality.py, 16 starts)
+    assert before.shape == after.shape == (8,) and np.all((after >= 0) & (after <= 1))
+  assert np.all(np.isfinite(np.asarray(scope["slopes"]))) and np.ptp(np.asarray(scope["values"])) > 0.05
