@@ -168,8 +168,9 @@ def polish_grasps(observation: Observation, grasps: ImageGrasp, quality: jax.Arr
   moved = lambda x: moved_grasps(observation, start, x, params, normals)
 
   def objective(x):
-    p = scorer.smooth(observation, moved(x))
-    return -jnp.sum(_logit(p)), p
+    grasps_x = moved(x)
+    p = scorer.smooth(observation, grasps_x)
+    return -jnp.sum(_logit(p)), (p, grasps_x)
 
   value_and_grad = jax.value_and_grad(objective, has_aux=True)
   optimizer = optax.adam(params.learning_rate)
@@ -178,8 +179,8 @@ def polish_grasps(observation: Observation, grasps: ImageGrasp, quality: jax.Arr
 
   def step(carry, _):
     x, state, best_x, best_p = carry
-    (_, p), g = value_and_grad(x)
-    p = jnp.where(_decoded(observation, moved(x), sampler, normals)[1] & started, p, -jnp.inf)
+    (_, (p, grasps_x)), g = value_and_grad(x)  # the iterate's grasps come back with its score: read once
+    p = jnp.where(_decoded(observation, grasps_x, sampler, normals)[1] & started, p, -jnp.inf)
     better = p > best_p
     best_x, best_p = jnp.where(better[:, None], x, best_x), jnp.where(better, p, best_p)
     updates, state = optimizer.update(jnp.where(jnp.isfinite(g), g, 0.0), state, x)
