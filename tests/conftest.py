@@ -8,6 +8,20 @@ import pytest
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
+
+def _share_compiled_programs():
+  """JAX's persistent compilation cache in ``$DEXJAX_CACHE/jax`` (the one the CLIs use) for the whole session: a
+  program compiled by one test file is loaded, not compiled again, by a later file (`_release_compiled_programs`
+  drops the in-memory copies after each file) and by the other xdist worker. Only compilations over 1 s are kept.
+  CI starts from an empty ``$DEXJAX_CACHE``, so each program is still compiled once there."""
+  import jax  # pylint: disable=import-outside-toplevel
+  from dexjax.geometry.cache import default_cache_dir  # pylint: disable=import-outside-toplevel
+  jax.config.update("jax_compilation_cache_dir", os.path.join(default_cache_dir(), "jax"))
+  jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
+_share_compiled_programs()
+
 GRID = 64  # small grids keep the suite fast; the library default is 100
 
 

@@ -17,6 +17,7 @@ from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality import (parallel_jaw_perturbations, robust_parallel_jaw_quality, robust_suction_quality,
                             suction_perturbations)
 from dexjax.quality.grasp_optimization import AscentSettings, move_grasp, optimize_grasp
+from dexjax.quality.grasp_quality import QualityConfig
 from dexjax.quality.robust import sample_attempt
 from dexjax.quality.smooth import (Smoothing, parallel_jaw_margins, smooth_parallel_jaw_quality,
                                    smooth_robust_parallel_jaw_quality, smooth_robust_suction_quality,
@@ -82,7 +83,6 @@ def suction_grasps(box, cylinder):
 @functools.partial(jax.jit, static_argnames=("suction",))
 def _per_draw(model, grasps, keys, smoothing, suction):
   """(hard resists (N, M), smooth pass (N, M)) of N grasps on the robust quality's own draws (M = DRAWS)."""
-  from dexjax.quality.grasp_quality import QualityConfig
   from dexjax.quality.gripper_geometry import NEAREST_SAMPLES, nearest_jaw_samples
 
   def one(key, grasp):
@@ -199,11 +199,11 @@ def test_parallel_jaw_gradients_match_central_differences_on_the_sphere_and_box_
   grasps, valid = sample_antipodal_grasps(jax.random.key(1), sphere, 32, gripper=WIDE)
   for grasp in _on_the_slope(sphere, grasps, np.flatnonzero(np.asarray(valid)), WIDE):
     _check_pose_gradients(sphere, grasp, WIDE)
-  grasps, valid = sample_antipodal_grasps(jax.random.key(2), box, 96)
-  points = jax.vmap(lambda g: close_jaws(box, g, ParallelJawGripper()).points)(grasps)
+  grasps, valid = sample_antipodal_grasps(jax.random.key(2), box, 96, gripper=WIDE)
+  points = jax.vmap(lambda g: close_jaws(box, g, WIDE).points)(grasps)
   faces = np.asarray(valid) & _away_from_box_edges(points, box.extents, 0.008)
-  for grasp in _on_the_slope(box, grasps, np.flatnonzero(faces), ParallelJawGripper()):
-    _check_pose_gradients(box, grasp, ParallelJawGripper())
+  for grasp in _on_the_slope(box, grasps, np.flatnonzero(faces), WIDE):  # one gripper: one compiled program
+    _check_pose_gradients(box, grasp, WIDE)
 
 
 @jax.jit
@@ -285,7 +285,7 @@ def test_margins_are_the_hard_tests(box):
   over = lambda x: SuctionGrasp(center=jnp.array([x, 0.0, 0.02]), approach=jnp.array([0.0, 0.0, -1.0]))
   edge = margins(box, over(0.035), SuctionGripper(), cond)
   assert -0.0055 < float(edge.lip) < -0.0035 and float(soft_pass(edge, Smoothing(0.0))) == 0.0
-  slope = jax.grad(lambda x: soft_pass(suction_margins(box, over(x), SuctionGripper(), cond)))(0.035)
+  slope = jax.jit(jax.grad(lambda x: soft_pass(suction_margins(box, over(x), SuctionGripper(), cond))))(0.035)
   assert float(slope) < 0  # inwards (-x) raises it
   inside = ParallelJawGrasp(center=jnp.zeros(3), axis=jnp.array([1.0, 0.0, 0.0]), approach=jnp.array([0.0, 0.0, -1.0]),
                             width=jnp.float32(0.05))
@@ -329,3 +329,18 @@ def test_ascent_raises_the_hard_robust_quality_on_an_unseen_object(suction, cach
   assert np.sum(after > before) > np.sum(after < before)
   shift = np.linalg.norm(np.asarray(result.grasp.center - grasps.center), axis=1)
   assert np.all(shift <= AscentSettings().max_translation + 0.006)  # trust region (+ the suction re-projection)
+
+
+def test_the_ascent_guard_keeps_the_start_when_the_last_iterate_is_worse(box):
+  """`optimize_grasp`'s final guard: of a cup centred on the box's top face and one overhanging its edge by 5 mm,
+  the centred one is returned whichever of the two is the start."""
+  from dexjax.quality.grasp_optimization import _guarded
+  centred = SuctionGrasp(center=jnp.array([0.0, 0.0, 0.02]), approach=jnp.array([0.0, 0.0, -1.0]))
+  over = SuctionGrasp(center=jnp.array([0.035, 0.0, 0.02]), approach=jnp.array([0.0, 0.0, -1.0]))
+  guarded = jax.jit(lambda start, final: _guarded(jax.random.key(0), start, final, 20, AscentSettings(), box,
+                                                  SuctionGripper(), suction_perturbations(), QualityConfig()))
+  for start, final in ((centred, over), (over, centred)):
+    np.testing.assert_array_equal(np.asarray(guarded(start, final).center), np.asarray(centred.center))
+  unguarded = _guarded(jax.random.key(0), centred, over, 20, AscentSettings(guard_samples=0), box, SuctionGripper(),
+                       suction_perturbations(), QualityConfig())
+  assert unguarded is over

@@ -11,6 +11,14 @@ of the expectation), and projects after every step:
 * a suction grasp's centre is put back on the surface along its approach (where the approach ray meets the
   object), so the cup stays on the object instead of drifting off it.
 
+With 10 draws per step the gradient is noisy, and where the start already sits at the quality's optimum (a
+grasp centred on a 4 mm-thick sliver, whose 2.5 mm pose noise decides everything) the steps only jitter it off.
+So the ascent ends with a guard: the final iterate replaces the start only if its smooth quality on
+``guard_samples`` common draws (the same draws for both) is not lower. Measured on three unseen objects, 24
+sampled grasps each, hard robust probability with 100 independent draws: parallel jaw 0.094 -> 0.068 (17 of 24
+lowered) without the guard and 0.094 -> 0.086 (7 lowered) with it on the sliver; 0.841 -> 0.944 (3 lowered) and
+0.841 -> 0.965 (none lowered) on a level-1 object; suction 0.047 -> 0.205 (1 lowered) and 0.047 -> 0.212 (none).
+
 `optimize_grasp` takes one grasp; batch starting grasps with `jax.vmap` (one compiled program). The best
 iterate by the smooth quality on the step's draws is returned along with the final one; judge them with the
 hard robust quality and independent draws. The final grasp is the better default: with 10 draws per step the
@@ -48,6 +56,8 @@ class AscentSettings:
     max_translation: the centre stays within this distance of the start, metres.
     max_rotation: the orientation stays within this angle of the start, radians.
     smoothing: temperatures of the smooth quality.
+    guard_samples: static; draws of the final guard (the start is kept unless the final iterate's smooth quality
+      on these common draws is at least the start's); 0 returns the final iterate unguarded.
   """
 
   learning_rate: float = 0.5
@@ -56,6 +66,7 @@ class AscentSettings:
   max_translation: float = 0.01
   max_rotation: float = 0.5
   smoothing: Smoothing = Smoothing()
+  guard_samples: int = struct.field(pytree_node=False, default=30)
 
 
 @struct.dataclass
@@ -63,7 +74,7 @@ class AscentResult:
   """Outcome of `optimize_grasp` for one starting grasp.
 
   Attributes:
-    grasp: the final grasp.
+    grasp: the final grasp: the last iterate, or the start where the guard found the last iterate worse.
     best: the iterate with the highest smooth quality seen (on its step's draws), the start included.
     best_value: () that smooth quality.
     values: (steps + 1,) smooth quality of each iterate (on its step's draws), the start first.
@@ -161,8 +172,22 @@ def optimize_grasp(key: jax.Array, model: ObjectModel, grasp: ParallelJawGrasp |
   final_value = objective(jax.random.fold_in(key, steps), current(params))
   better = final_value > best_value
   best_params = jax.tree.map(lambda b, p: jnp.where(better, p, b), best_params, params)
-  return AscentResult(grasp=current(params), best=current(best_params), best_value=jnp.maximum(best_value, final_value),
+  return AscentResult(grasp=_guarded(key, grasp, current(params), steps, settings, model, gripper, perturbations,
+                                     config),
+                      best=current(best_params), best_value=jnp.maximum(best_value, final_value),
                       values=jnp.concatenate([values, final_value[None]]))
+
+
+def _guarded(key, start, final, steps, settings, model, gripper, perturbations, config):
+  """``final`` if its smooth quality on ``settings.guard_samples`` common draws is at least ``start``'s, else
+  ``start`` (``final`` when the guard is off)."""
+  if settings.guard_samples == 0:
+    return final
+  guard = _objective(model, gripper, perturbations.replace(num_samples=settings.guard_samples), config,
+                     settings.smoothing)
+  k = jax.random.fold_in(key, steps + 1)
+  keep = guard(k, final) >= guard(k, start)
+  return jax.tree.map(lambda f, s: jnp.where(keep, f, s), final, start)
 
 
 __all__ = ['AscentResult', 'AscentSettings', 'move_grasp', 'optimize_grasp']
