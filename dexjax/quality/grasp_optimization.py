@@ -169,11 +169,11 @@ def optimize_grasp(key: jax.Array, model: ObjectModel, grasp: ParallelJawGrasp |
   params = {'translation': jnp.zeros(3, jnp.float32), 'rotation': jnp.zeros(3, jnp.float32)}
   init = (params, optimizer.init(params), params, jnp.float32(-1.0))
   (params, _, best_params, best_value), values = jax.lax.scan(step, init, jnp.arange(steps))
-  final_value = objective(jax.random.fold_in(key, steps), current(params))
+  final = current(params)
+  final_value = objective(jax.random.fold_in(key, steps), final)
   better = final_value > best_value
   best_params = jax.tree.map(lambda b, p: jnp.where(better, p, b), best_params, params)
-  return AscentResult(grasp=_guarded(key, grasp, current(params), steps, settings, model, gripper, perturbations,
-                                     config),
+  return AscentResult(grasp=_guarded(key, grasp, final, steps, settings, model, gripper, perturbations, config),
                       best=current(best_params), best_value=jnp.maximum(best_value, final_value),
                       values=jnp.concatenate([values, final_value[None]]))
 
