@@ -1,7 +1,7 @@
 """Gradient ascent on the smooth robust quality from sampled grasps on unseen objects: one JSON object on stdout.
 
   python benchmarks/gradient_ascent.py [--objects procedural:L1/95000@0 ...] [--grasps 24] [--steps 20]
-                                       [--draws 100] [--grid 64] [--quick]
+                                       [--draws 100] [--grid 64] [--reach 2048] [--quick]
 
 For each object (default: procedural objects 95000 and 95001 of each level, which no dataset used) and gripper,
 ``--grasps`` grasps drawn by the object's sampler (`dexjax.sample_antipodal_grasps` / `sample_suction_grasps`,
@@ -12,6 +12,15 @@ independent Monte-Carlo draws (key 99). The baseline is the sampled grasps thems
 Reported per object and gripper: the mean probability before and after (the final iterate), how many grasps were
 raised, lowered or unchanged, and the seconds of one ascent batch (the first call of each gripper includes its
 compilation: ``compile_and_run_s``); totals per gripper. ``--quick``: the first two objects, 8 grasps.
+
+Which starts *could* be raised (``--reach`` candidates, 0 skips it): ``--reach`` more grasps from the same sampler
+(key 3) are judged by the same hard probability; a start is ``improvable`` when some candidate scores higher and lies
+within the ascent's trust region of it (centre within ``AscentSettings.max_translation``, orientation within
+``max_rotation``: the angle between approaches for suction, the rotation between gripper frames, either jaw
+order, for the parallel jaw). ``raised_improvable`` counts the improvable starts the ascent raised. This is a lower
+bound on what the trust region holds (the sampler's grasps only: surface normals as suction approaches), but an
+object on which no candidate anywhere scores above 0 (``candidates_above_zero``) cannot be helped by a local
+search.
 """
 
 from __future__ import annotations
@@ -28,7 +37,8 @@ import jax
 import numpy as np
 
 import dexjax as dj
-from dexjax.quality import optimize_grasp
+from dexjax.grasps import ParallelJawGrasp, parallel_jaw_pose
+from dexjax.quality import AscentSettings, optimize_grasp
 
 OBJECTS = [f'procedural:L{level}/{index}@0' for index in (95000, 95001) for level in (1, 2, 3)]
 
@@ -42,6 +52,33 @@ def _judges(model, draws: int):
   }
 
 
+def _rotation_angles(starts, candidates) -> np.ndarray:
+  """(S, C) angle, radians, between each start's orientation and each candidate's (see the module docstring)."""
+  if not isinstance(starts, ParallelJawGrasp):
+    cosine = np.asarray(starts.approach) @ np.asarray(candidates.approach).T
+    return np.arccos(np.clip(cosine, -1.0, 1.0))
+  frames = [np.asarray(jax.vmap(parallel_jaw_pose)(g))[:, :3, :3] for g in (starts, candidates)]
+  traces = np.einsum('sij,cij->sc', *frames)  # trace(R_s^T R_c)
+  flipped = np.einsum('sij,cij->sc', frames[0], frames[1] * np.array([1.0, -1.0, -1.0]))  # jaws swapped
+  cosine = (np.maximum(traces, flipped) - 1.0) / 2.0
+  return np.arccos(np.clip(cosine, -1.0, 1.0))
+
+
+def _judge_in_chunks(judge, grasps, count: int, chunk: int = 256) -> np.ndarray:
+  """(count,) ``judge`` of ``count`` grasps in fixed chunks (the last padded with the first grasp: one program)."""
+  index = np.arange(-(-count // chunk) * chunk) % max(count, 1)
+  scores = [np.asarray(judge(jax.tree.map(lambda x: x[index[i:i + chunk]], grasps)))
+            for i in range(0, index.size, chunk)]
+  return np.concatenate(scores)[:count] if count else np.zeros(0)
+
+
+def _improvable(starts, before, candidates, scores, settings: AscentSettings) -> np.ndarray:
+  """(S,) bool: a candidate scores above the start within the trust region."""
+  distance = np.linalg.norm(np.asarray(starts.center)[:, None] - np.asarray(candidates.center)[None], axis=-1)
+  near = (distance <= settings.max_translation) & (_rotation_angles(starts, candidates) <= settings.max_rotation)
+  return np.any(near & (scores[None] > before[:, None]), axis=1)
+
+
 def main() -> None:
   p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
   p.add_argument('--objects', nargs='+', default=OBJECTS)
@@ -49,6 +86,7 @@ def main() -> None:
   p.add_argument('--steps', type=int, default=20)
   p.add_argument('--draws', type=int, default=100)
   p.add_argument('--grid', type=int, default=64)
+  p.add_argument('--reach', type=int, default=2048, help='candidates for the improvable count (0: skip)')
   p.add_argument('--quick', action='store_true')
   args = p.parse_args()
   if args.quick:
@@ -71,12 +109,19 @@ def main() -> None:
         row.update(before=round(float(before.mean()), 4), after=round(float(after.mean()), 4),
                    raised=int((after > before).sum()), lowered=int((after < before).sum()),
                    unchanged=int((after == before).sum()))
+        if args.reach:
+          candidates, ok = sample(jax.random.key(3), model, args.reach)
+          candidates = jax.tree.map(lambda x: x[np.asarray(ok)], candidates)
+          scores = _judge_in_chunks(judge, candidates, int(np.sum(ok)))
+          improvable = _improvable(starts, before, candidates, scores, AscentSettings())
+          row.update(candidates=int(scores.size), candidates_above_zero=int((scores > 0).sum()),
+                     improvable=int(improvable.sum()), raised_improvable=int((improvable & (after > before)).sum()))
         row['compile_and_run_s' if gripper not in compiled else 'run_s'] = round(seconds, 2)
         compiled.add(gripper)
         total = totals.setdefault(gripper, {'grasps': 0, 'raised': 0, 'lowered': 0, 'unchanged': 0,
                                             'before': [], 'after': []})
-        for key in ('raised', 'lowered', 'unchanged'):
-          total[key] += row[key]
+        for key in ('raised', 'lowered', 'unchanged', 'improvable', 'raised_improvable'):
+          total[key] = total.get(key, 0) + row.get(key, 0)
         total['grasps'] += int(index.size)
         total['before'] += before.tolist()
         total['after'] += after.tolist()

@@ -96,6 +96,24 @@ def test_ray_cast_matches_exact_mesh_intersection(sphere):
   assert np.all(np.asarray(nearest)[np.asarray(hit)] < 0.1 * sphere.voxel_size)  # a hit: within the step floor
 
 
+def test_a_ray_outside_the_grid_box_reports_a_finite_closest_distance(sphere):
+  """Axis-parallel rays that never enter the grid box (once reported as millions of metres: the distance at the
+  far-away crossing of a slab they are parallel to) report about their true closest approach, with a gradient."""
+  half = 0.5 * sphere.sdf.shape[0] * float(sphere.voxel_size)  # the box's half-width about the sphere's centre
+  offsets = np.array([half + 0.002, half + 0.01, 0.1], np.float32)
+  centre = np.asarray(sphere.origin) + half - 0.5 * float(sphere.voxel_size)
+
+  def closest(x):
+    origin = jnp.asarray(centre) + jnp.array([x, 0.0, -0.2])
+    return ray_cast(sphere, origin, jnp.array([0.0, 0.0, 1.0]), num_steps=16)[2]
+
+  values = np.asarray(jax.vmap(closest)(jnp.asarray(offsets)))
+  slopes = np.asarray(jax.vmap(jax.grad(closest))(jnp.asarray(offsets)))
+  exact = offsets - 0.03  # the line's distance from the centre minus R
+  assert np.all(values >= exact - 1e-4) and np.all(values <= 1.2 * exact), (values, exact)
+  np.testing.assert_allclose(slopes, 1.0, atol=0.05)
+
+
 def test_sdf_value_is_differentiable_inside_and_outside_the_grid(cube):
   """`jax.grad` of the distance is finite everywhere and equals the exact box gradient near a face."""
   grad = jax.jit(jax.vmap(jax.grad(sdf_value, argnums=1), in_axes=(None, 0)))

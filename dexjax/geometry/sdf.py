@@ -152,8 +152,9 @@ def ray_cast(model: ObjectModel, origin: jax.Array, direction: jax.Array, *, num
     t: () distance to the hit along the ray, metres (undefined when not ``hit``).
     hit: () bool.
     closest: () the smallest signed distance at the marching points, metres: about the ray's closest approach to
-      the surface for a miss (> 0), below a tenth of a voxel for a hit; differentiable in ``origin`` and
-      ``direction`` (the points move with the ray), e.g. a margin of "the ray meets the surface".
+      the surface for a miss (> 0; for a ray that passes outside the grid box, the distance at its point nearest
+      the box's centre), below a tenth of a voxel for a hit; differentiable in ``origin`` and ``direction`` (the
+      points move with the ray), e.g. a margin of "the ray meets the surface".
   """
   d = model.sdf.shape[0]
   lo = model.origin - 0.5 * model.voxel_size
@@ -177,6 +178,10 @@ def ray_cast(model: ObjectModel, origin: jax.Array, direction: jax.Array, *, num
   start = jax.lax.stop_gradient(t_enter)
   t, _, closest_t, _ = jax.lax.fori_loop(0, num_steps, body, (start, jnp.array(False), start, jnp.array(jnp.inf)))
   t, closest_t = jax.lax.stop_gradient(t), jax.lax.stop_gradient(closest_t)
+  # A ray that misses the grid box marches nowhere: its closest point is taken nearest the box's centre (where
+  # the distance outside the grid is finite and a lower bound of sorts, not the far-away slab crossing).
+  nearest_centre = jnp.clip(jnp.dot(0.5 * (lo + hi) - origin, direction), 0.0, max_distance)
+  closest_t = jnp.where(t_enter <= t_exit, closest_t, jax.lax.stop_gradient(nearest_centre))
   closest = sdf_value(model, origin + closest_t * direction)
   p = origin + t * direction
   phi = sdf_value(model, p)
