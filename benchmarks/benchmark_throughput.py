@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -30,6 +29,10 @@ import time
 from dexjax.bench.attempt_log import read_attempts
 from dexjax.bench.protocol import Protocol
 from dexjax.bench.runner import BenchmarkSpec, benchmark_config, check_objects, run_benchmark
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 
 
 def _spec(args, trials: int) -> BenchmarkSpec:
@@ -85,7 +88,7 @@ def main() -> None:
       'baseline': {'what': 'the same loop serially in one process, first trial', 'attempts': len(serial),
                    'wall_s': round(serial_wall, 1), 'serial_attempts_per_s': round(serial_rate, 4)},
       'parallel_speedup': round(parallel_rate / serial_rate, 3) if steady else None,
-      'machine': {'cpus': os.cpu_count(), 'python': sys.version.split()[0], 'platform': platform.platform()},
+      'machine': describe(),
   }, indent=1))
 
 

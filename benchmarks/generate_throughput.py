@@ -32,15 +32,15 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import sys
 import tempfile
 import time
 
-import jax
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 import _numpy_baseline as baseline  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 from dexjax.data import finish_shard, open_manifest  # pylint: disable=wrong-import-position
@@ -125,7 +125,7 @@ def main() -> None:
   result = {'objects': args.objects, 'images_per_shard': args.images_per_shard, 'timed_shards': args.shards,
             'actions_per_gripper': config.policy.actions_per_gripper, 'image_size': [config.camera.width,
                                                                                      config.camera.height],
-            'cpu_count': os.cpu_count(), 'python': platform.python_version(), 'jax': jax.__version__}
+            'machine': describe()}
   clock = time.perf_counter()
   with tempfile.TemporaryDirectory() as out, ShardGenerator(config, cache_dir=cache) as generator:
     result['setup_s'] = round(time.perf_counter() - clock, 2)

@@ -29,7 +29,6 @@ import argparse
 import functools
 import json
 import os
-import platform
 import sys
 import time
 
@@ -39,6 +38,10 @@ import numpy as np
 import dexjax as dj
 from dexjax.grasps import ParallelJawGrasp, parallel_jaw_pose
 from dexjax.quality import AscentSettings, optimize_grasp
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 
 OBJECTS = [f'procedural:L{level}/{index}@0' for index in (95000, 95001) for level in (1, 2, 3)]
 
@@ -133,8 +136,7 @@ def main() -> None:
       'benchmark': 'gradient_ascent', 'steps': args.steps, 'draws': args.draws, 'grid': args.grid,
       'baseline': 'the sampled grasps, judged by the same hard robust probability in the same run',
       'objects': rows, 'totals': totals,
-      'machine': {'cpus': os.cpu_count(), 'python': sys.version.split()[0], 'platform': platform.platform(),
-                  'jax': jax.__version__},
+      'machine': describe(),
   }, indent=1))
 
 

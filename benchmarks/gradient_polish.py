@@ -36,7 +36,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import statistics
 import sys
 import time
@@ -51,6 +50,10 @@ from dexjax.generate.cameras import run_camera
 from dexjax.models.shipped import PRETRAINED, load_models
 from dexjax.policy import CEMParams, PolishParams, make_policy, plan_grasp, prepare_observation
 from dexjax.policy.scorers import GRIPPERS
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 
 OBJECTS = ['procedural:L1/95000:95005', 'procedural:L2/95000:95005', 'procedural:L3/95000:95005']
 POLICIES = ('cem', 'cem_polish', 'cem_equal_time')
@@ -179,9 +182,7 @@ def main() -> None:
       'polish': {k: v for k, v in PolishParams(steps=args.steps).__dict__.items()},
       'model': args.model, 'heaps_s': round(heaps_s, 1), 'grippers': results,
       'baseline': 'cem_equal_time: the seed CEM with n and c scaled to the polished plan time, same run',
-      'load_average': os.getloadavg()[0],
-      'machine': {'cpus': os.cpu_count(), 'python': sys.version.split()[0], 'platform': platform.platform(),
-                  'jax': jax.__version__},
+      'machine': describe(),
       'total_s': round(time.perf_counter() - start, 1),
   }, indent=1))
 

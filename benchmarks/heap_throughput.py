@@ -54,7 +54,6 @@ import dataclasses
 import itertools
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -64,6 +63,8 @@ import numpy as np
 import trimesh
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 import _pybullet_baseline as pybullet_baseline  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 import dexjax.sim as sim  # pylint: disable=wrong-import-position
@@ -261,7 +262,7 @@ def main() -> None:
   counts = (5, 10)
   report: dict = {
       'benchmark': 'heap_throughput', 'quick': args.quick,
-      'machine': {'cpus': os.cpu_count(), 'platform': platform.platform(), 'python': platform.python_version()},
+      'machine': describe(),
       'versions': {'jax': jax.__version__, 'mujoco': __import__('mujoco').__version__,
                    'pybullet': _version('pybullet')},
       'settings': {k: getattr(sim.SettleSettings(), k) for k in (

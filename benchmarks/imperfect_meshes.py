@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 import warnings
@@ -44,7 +43,6 @@ import zlib
 
 import igl
 import jax
-import jax.numpy as jnp
 import numpy as np
 import trimesh
 
@@ -54,6 +52,10 @@ from dexjax.objects import defects, resolve_mesh
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality import evaluate_grasps, parallel_jaw_perturbations, suction_perturbations
 from dexjax.sampling import sample_antipodal_grasps, sample_suction_grasps
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 
 DEFAULT_OBJECTS = ['builtin:box', 'builtin:cylinder', 'builtin:l_shape', 'builtin:box_with_hole', 'builtin:sphere',
                    'procedural:L1/0', 'procedural:L2/0', 'procedural:L2/1', 'procedural:L3/0']
@@ -145,7 +147,7 @@ def main() -> None:
   p.add_argument('--no-grids', action='store_true', help='skip the watertight grid comparison')
   args = p.parse_args()
   result = {'benchmark': 'imperfect_meshes', 'grid_size': args.grid_size, 'grasps': args.grasps,
-            'machine': {'cpus': os.cpu_count(), 'python': platform.python_version()}, 'objects': {}}
+            'machine': describe(), 'objects': {}}
   key = jax.random.key(args.seed)
   for spec in args.objects:
     mesh, _ = resolve_mesh(spec)

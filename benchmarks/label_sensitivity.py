@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 
@@ -56,6 +55,11 @@ from dexjax.render import DepthRenderer, build_render_scene
 from dexjax.sampling import (parallel_jaw_grasp_3d, sample_antipodal_grasps, sample_antipodal_image_grasps,
                              sample_suction_grasps, sample_suction_image_grasps, suction_grasp_3d)
 from dexjax.sim import heap_objects, sample_heap_states, settle
+import os
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 
 CONFIG = GenerateConfig()
 PARAMS = label_params(CONFIG)
@@ -229,7 +233,7 @@ def main() -> None:
   renderer = DepthRenderer(*image_size(CONFIG))
   key = jax.random.key(args.seed)
   report = {'benchmark': 'label_sensitivity', 'reference_grid': reference, 'grids': grids,
-            'jax': jax.__version__, 'machine': platform.machine(), 'levels': {}}
+            'machine': describe(), 'levels': {}}
   for level in args.levels:
     loaded = load_object_set([f'procedural:L{level}/0:{args.objects}'])
     models_by_grid, build_s = {}, {}

@@ -50,7 +50,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 
@@ -61,6 +60,8 @@ import scipy
 import sklearn
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 
 import _gqcnn_cem_baseline as baseline  # noqa: E402
 
@@ -282,8 +283,7 @@ def main() -> None:
   result = {'image': {'size': list(depth.shape), 'source': args.npz or f'rendered heap {OBJECTS[0]} seed {args.seed}',
                       'segmask': 'rendered objects (mask >= 0)', 'mask_pixels': info['mask_pixels']},
             'policy': "make_policy('ambidextrous') + jax.jit(plan_grasp): CEM per gripper m 3, n 250, c 50, k 5",
-            'weights': weights, 'plans': args.plans, 'device': str(jax.devices()[0]), 'cpu_count': os.cpu_count(),
-            'python': platform.python_version(), 'jax': jax.__version__, 'scipy': scipy.__version__,
+            'weights': weights, 'plans': args.plans, 'machine': describe(), 'scipy': scipy.__version__,
             'sklearn': sklearn.__version__}
   for name, models in network_rows(args).items():
     result[name] = run_row(name, models, obs, scene, args)

@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 
@@ -51,6 +50,8 @@ import numpy as np
 import scipy
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 
 import _numpy_baseline as baseline  # noqa: E402
 
@@ -149,8 +150,7 @@ def main() -> None:
   cfg = QualityConfig()
   key = jax.random.key(0)
   result = {"object": args.object, "num_samples": 10, "baseline_grasps": args.baseline_grasps,
-            "repeats": args.repeats, "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(),
-            "python": platform.python_version(), "jax": jax.__version__, "cvxopt": cvxopt.__version__,
+            "repeats": args.repeats, "machine": describe(), "cvxopt": cvxopt.__version__,
             "scipy": scipy.__version__,
             "baselines": {
                 "cvxopt": "per grasp and sample: NumPy contacts + cvxopt QP, cvxopt default tolerances, progress "

@@ -48,7 +48,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -58,6 +57,8 @@ import numpy as np
 import trimesh
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 import heap_throughput  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 import dexjax.sim as sim  # pylint: disable=wrong-import-position
@@ -254,7 +255,7 @@ def main() -> None:
   if args.worker is not None:
     print(json.dumps(bench_backend('gl', args.worker, args)))
     return
-  out = {'image_size': [SIZE, SIZE], 'cpu_count': os.cpu_count(), 'machine': platform.machine(),
+  out = {'image_size': [SIZE, SIZE], 'machine': describe(),
          'jax_backend': jax.default_backend(),
          'versions': {k: _version(k) for k in ('pyrender', 'PyOpenGL', 'pyglet', 'mujoco', 'trimesh', 'numpy')},
          'baseline': 'pyrender OffscreenRenderer, one RenderFlags.SEG pass per image (depth + segmentation colours '

@@ -26,7 +26,6 @@ import itertools
 import json
 import math
 import os
-import platform
 import statistics
 import time
 
@@ -37,6 +36,11 @@ import numpy as np
 from dexjax.models import GQCNNConfig, Normalization, init_gqcnn, num_parameters, predict
 from dexjax.models.saved import GraspQualityModel
 from dexjax.train import OptimizerConfig, TrainConfig, create_state, make_optimizer, sgd_step
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _machine import describe  # noqa: E402
 
 TRAIN_BATCH, INFER_BATCH = 64, 256
 
@@ -149,8 +153,7 @@ def main() -> None:
   p.add_argument('--pipeline-batches', type=int, default=200)
   args = p.parse_args()
   gflops = matmul_gflops(args.repeats)
-  result = {'machine': {'cpu_count': os.cpu_count(), 'platform': platform.platform(), 'jax': jax.__version__,
-                        'devices': [str(d) for d in jax.devices()]},
+  result = {'machine': describe(),
             'matmul_gflops': gflops, 'train_batch': TRAIN_BATCH, 'inference_batch': INFER_BATCH,
             'dexnet4': measure(GQCNNConfig(), args.steps, args.repeats, gflops),
             'quickstart': measure(GQCNNConfig.small(), args.steps, args.repeats, gflops)}
