@@ -67,7 +67,7 @@ def _rotation_angles(starts, candidates) -> np.ndarray:
   return np.arccos(np.clip(cosine, -1.0, 1.0))
 
 
-def _judge_in_chunks(judge, grasps, count: int, chunk: int = 256) -> np.ndarray:
+def _judge_in_chunks(judge, grasps, count: int, chunk: int = 64) -> np.ndarray:
   """(count,) ``judge`` of ``count`` grasps in fixed chunks (the last padded with the first grasp: one program)."""
   index = np.arange(-(-count // chunk) * chunk) % max(count, 1)
   scores = [np.asarray(judge(jax.tree.map(lambda x: x[index[i:i + chunk]], grasps)))
