@@ -46,12 +46,16 @@ from _machine import describe  # noqa: E402
 OBJECTS = [f'procedural:L{level}/{index}@0' for index in (95000, 95001) for level in (1, 2, 3)]
 
 
-def _judges(model, draws: int):
+def _judges(draws: int):
+  """Per gripper: its sampler and the hard judge ``judge(model, grasps)`` -> (N,) robust probability with ``draws``
+  draws (key 99), jitted once (the object is an argument: one program serves every object)."""
+  def judge(quality, perturbations):
+    return jax.jit(jax.vmap(lambda model, g: quality(jax.random.key(99), model, g, perturbations=perturbations)
+                            .probability, in_axes=(None, 0)))
   return {
-      'parallel_jaw': (dj.sample_antipodal_grasps, lambda g: dj.robust_parallel_jaw_quality(
-          jax.random.key(99), model, g, perturbations=dj.parallel_jaw_perturbations(draws)).probability),
-      'suction': (dj.sample_suction_grasps, lambda g: dj.robust_suction_quality(
-          jax.random.key(99), model, g, perturbations=dj.suction_perturbations(draws)).probability),
+      'parallel_jaw': (dj.sample_antipodal_grasps,
+                       judge(dj.robust_parallel_jaw_quality, dj.parallel_jaw_perturbations(draws))),
+      'suction': (dj.sample_suction_grasps, judge(dj.robust_suction_quality, dj.suction_perturbations(draws))),
   }
 
 
@@ -67,10 +71,11 @@ def _rotation_angles(starts, candidates) -> np.ndarray:
   return np.arccos(np.clip(cosine, -1.0, 1.0))
 
 
-def _judge_in_chunks(judge, grasps, count: int, chunk: int = 64) -> np.ndarray:
-  """(count,) ``judge`` of ``count`` grasps in fixed chunks (the last padded with the first grasp: one program)."""
+def _judge_in_chunks(judge, model, grasps, count: int, chunk: int = 64) -> np.ndarray:
+  """(count,) ``judge(model, .)`` of ``count`` grasps in fixed chunks (the last padded with the first grasps: one
+  program for starts, final grasps and candidates alike)."""
   index = np.arange(-(-count // chunk) * chunk) % max(count, 1)
-  scores = [np.asarray(judge(jax.tree.map(lambda x: x[index[i:i + chunk]], grasps)))
+  scores = [np.asarray(judge(model, jax.tree.map(lambda x: x[index[i:i + chunk]], grasps)))
             for i in range(0, index.size, chunk)]
   return np.concatenate(scores)[:count] if count else np.zeros(0)
 
@@ -96,9 +101,10 @@ def main() -> None:
     args.objects, args.grasps = args.objects[:2], 8
   ascend = jax.jit(jax.vmap(functools.partial(optimize_grasp, steps=args.steps), in_axes=(None, None, 0)))
   rows, totals, compiled = [], {}, set()
+  judges = _judges(args.draws)
   for name in args.objects:
     model = dj.load_object_model(name, grid_size=args.grid)
-    for gripper, (sample, hard) in _judges(model, args.draws).items():
+    for gripper, (sample, judge) in judges.items():
       grasps, valid = sample(jax.random.key(1), model, 4 * args.grasps)
       index = np.flatnonzero(np.asarray(valid))[:args.grasps]
       row = {'object': name, 'gripper': gripper, 'grasps': int(index.size)}
@@ -107,15 +113,15 @@ def main() -> None:
         start = time.perf_counter()
         result = jax.block_until_ready(ascend(jax.random.key(2), model, starts))
         seconds = time.perf_counter() - start
-        judge = jax.jit(jax.vmap(hard))
-        before, after = np.asarray(judge(starts)), np.asarray(judge(result.grasp))
+        before = _judge_in_chunks(judge, model, starts, int(index.size))
+        after = _judge_in_chunks(judge, model, result.grasp, int(index.size))
         row.update(before=round(float(before.mean()), 4), after=round(float(after.mean()), 4),
                    raised=int((after > before).sum()), lowered=int((after < before).sum()),
                    unchanged=int((after == before).sum()))
         if args.reach:
           candidates, ok = sample(jax.random.key(3), model, args.reach)
           candidates = jax.tree.map(lambda x: x[np.asarray(ok)], candidates)
-          scores = _judge_in_chunks(judge, candidates, int(np.sum(ok)))
+          scores = _judge_in_chunks(judge, model, candidates, int(np.sum(ok)))
           improvable = _improvable(starts, before, candidates, scores, AscentSettings())
           row.update(candidates=int(scores.size), candidates_above_zero=int((scores > 0).sum()),
                      improvable=int(improvable.sum()), raised_improvable=int((improvable & (after > before)).sum()))
