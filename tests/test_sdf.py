@@ -123,3 +123,31 @@ def test_sdf_value_is_differentiable_inside_and_outside_the_grid(cube):
   assert np.all(np.isfinite(g))
   exact = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [1.0, 0, 0]])
   np.testing.assert_allclose(g, exact, atol=0.02)
+
+
+def test_a_model_selected_from_a_stack_reads_exactly_what_the_model_itself_reads(cube, sphere, box):
+  from dexjax.geometry import select_model, sdf_gradient
+  from dexjax.quality.heap_reward import stack_models
+  models = [cube, sphere, box]
+  stack = stack_models(models)
+  rng = np.random.default_rng(3)
+  points = jnp.asarray(rng.uniform(-0.06, 0.06, (300, 3)), jnp.float32)  # inside and outside the grid boxes
+  dirs = rng.normal(size=(300, 3))
+  dirs = jnp.asarray(dirs / np.linalg.norm(dirs, axis=1, keepdims=True), jnp.float32)
+  ids = jnp.asarray(rng.integers(0, 3, 300), jnp.int32)
+
+  def read(model, p, d):
+    t, hit, closest = ray_cast(model, p - 0.1 * d, d)
+    return sdf_value(model, p), sdf_gradient(model, p), jnp.where(hit, t, -1.0), closest
+
+  # One program per form: the view's index batched with the points (as the heap reward selects a target per
+  # grasp), the plain models one at a time. The two programs fuse differently: equal to float32 rounding.
+  viewed = jax.jit(jax.vmap(lambda i, p, d: read(select_model(stack, i), p, d)))(ids, points, dirs)
+  plain = jax.jit(jax.vmap(read, in_axes=(None, 0, 0)))
+  for i, model in enumerate(models):
+    rows = np.flatnonzero(np.asarray(ids) == i)
+    expected = plain(model, points[rows], dirs[rows])
+    for got, want in zip(viewed, expected):
+      np.testing.assert_allclose(np.asarray(got)[rows], np.asarray(want), rtol=0, atol=1e-6)
+  # The view is not the first model's grid read at a wrong offset: the three objects differ at these points.
+  assert len({round(float(sdf_value(m, points[0])), 6) for m in models}) == 3

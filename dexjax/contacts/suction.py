@@ -93,7 +93,7 @@ def _approach_hit(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGripp
   """(first hit (3,) of the approach ray through the grasp centre, contact margin (): ``contact_tolerance`` -
   |hit depth along the approach from the centre|, -inf for a miss)."""
   v = normalize(grasp.approach)
-  back = 2.0 * model.sdf.shape[0] * model.voxel_size  # start outside the grid box
+  back = 2.0 * model.grid_size * model.voxel_size  # start outside the grid box
   hit, depth, ok, _ = _project(model, grasp.center[None], v, back, 2 * gripper.num_ray_steps)
   return hit[0], jnp.where(ok[0], gripper.contact_tolerance - jnp.abs(depth[0]), -jnp.inf)
 

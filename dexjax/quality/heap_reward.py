@@ -25,14 +25,13 @@ S = 1 iff, in this order of checks (the first failing one names the `RewardRecor
 Heap objects: `HeapScene` holds the models of the N available objects stacked along a leading axis (all
 built with the same grid size, e.g. `prepare_object_set` output at one ``grid_size``; `stack_models`), and
 per slot of the padded heap (P = 10) an object id, a mask, a pose and the object's Coulomb friction. Signed distances are read straight
-from the stacked grid at (id, voxel) (`_stacked_sdf`), so no per-slot copy of a grid is made; only the
-target's model is gathered (once) for the robust quality. Every function takes one grasp; batch with
+from the stacked grid at (id, voxel) (`dexjax.geometry.select_model`), so no copy of a grid is made, neither per
+slot nor for the target's robust quality. Every function takes one grasp; batch with
 `jax.vmap` (over grasps, keys or heaps).
 """
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -41,7 +40,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from dexjax.geometry.object_model import ObjectModel
+from dexjax.geometry.object_model import ObjectModel, select_model
+from dexjax.geometry.sdf import sdf_value
 from dexjax.geometry.transforms import quat_to_matrix
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
@@ -59,7 +59,6 @@ if TYPE_CHECKING:
 REWARD_FAILURES = ('none', 'collision_object', 'collision_bin', 'no_object', 'multiple_objects', 'not_robust')
 (NONE, COLLISION_OBJECT, COLLISION_BIN, NO_OBJECT, MULTIPLE_OBJECTS, NOT_ROBUST) = range(len(REWARD_FAILURES))
 
-_CORNERS = np.array(list(itertools.product((0, 1), repeat=3)), np.int32)  # (8, 3)
 _WORLD_DOWN = (0.0, 0.0, -1.0)
 
 
@@ -162,30 +161,13 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
                    mass=None if mass is None else jnp.asarray(np.where(mask, np.asarray(mass), 1.0), jnp.float32))
 
 
-def _stacked_sdf(models: ObjectModel, index: jax.Array, x: jax.Array) -> jax.Array:
-  """Signed distance () in metres of object ``index`` of stacked ``models`` at object-frame point ``x`` (3,);
-  the same value as `dexjax.geometry.sdf_value` on that model, without slicing its grid."""
-  d = models.sdf.shape[-1]
-  h = models.voxel_size[index]
-  g = (x - models.origin[index]) / h
-  gc = jnp.clip(g, 0.0, d - 1.0)
-  sq = jnp.sum((g - gc) ** 2)
-  pos = sq > 0.0  # double `where`: a finite gradient where the point is inside the grid
-  outside = jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0) * h
-  i0 = jnp.clip(jnp.floor(gc), 0, d - 2).astype(jnp.int32)
-  frac = gc - i0
-  idx = i0[None, :] + _CORNERS
-  w = jnp.prod(jnp.where(_CORNERS == 1, frac[None, :], 1.0 - frac[None, :]), axis=-1)
-  return jnp.dot(w, models.sdf[index, idx[:, 0], idx[:, 1], idx[:, 2]]) + outside
-
-
 def slot_distances(scene: HeapScene, points: jax.Array) -> jax.Array:
   """(P, K) signed distance (metres) of world points (K, 3) to the object in each slot; +inf in empty slots."""
 
   def one(index, pose):
     rot = quat_to_matrix(pose[3:], xp=jnp)
     local = (points - pose[:3]) @ rot  # R^T (p - t), row-wise
-    return jax.vmap(lambda p: _stacked_sdf(scene.models, index, p))(local)
+    return jax.vmap(lambda p: sdf_value(select_model(scene.models, index), p))(local)
 
   ids = jnp.clip(scene.object_ids, 0, scene.models.sdf.shape[0] - 1)
   dist = jax.vmap(one)(ids, scene.poses)
@@ -243,7 +225,7 @@ def _record(hit_object, hit_bin, contacted, target, probability, threshold) -> R
 def _target_model(scene: HeapScene, target: jax.Array) -> ObjectModel:
   """The `ObjectModel` of the object in slot ``target`` (slot 0's when ``target`` is -1)."""
   index = jnp.clip(scene.object_ids[jnp.maximum(target, 0)], 0, scene.models.sdf.shape[0] - 1)
-  return jax.tree.map(lambda a: a[index], scene.models)
+  return select_model(scene.models, index)
 
 
 def parallel_jaw_collisions(grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin,
