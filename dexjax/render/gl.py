@@ -179,6 +179,7 @@ class GLDepthBackend:
     model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
     model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
     model.vis.quality.offsamples = 0  # no multisampling: segment colours must not blend at edges
+    model.vis.quality.shadowsize = 0  # no shadows are drawn; the default 4096^2 shadow map made every upload slow
     scene = mujoco.MjvScene(model, maxgeom=model.ngeom + 16)
     camera = mujoco.MjvCamera()
     mujoco.mjv_defaultFreeCamera(model, camera)
