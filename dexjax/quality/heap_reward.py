@@ -162,16 +162,22 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
 
 
 def slot_distances(scene: HeapScene, points: jax.Array) -> jax.Array:
-  """(P, K) signed distance (metres) of world points (K, 3) to the object in each slot; +inf in empty slots."""
+  """(P, K) signed distance (metres) of world points (K, 3) to the object in each slot; +inf in empty slots.
 
-  def one(index, pose):
+  Each slot is a `jax.lax.cond` on its mask: when the caller batches grasps but not the heap (``vmap`` over
+  points with ``scene`` unbatched, as `dexjax.generate.label_image` does), empty slots cost nothing (heaps hold
+  3-10 objects in P = 10 slots); with a batched ``scene`` the cond becomes a select and every slot is computed.
+  """
+  ids = jnp.clip(scene.object_ids, 0, scene.models.sdf.shape[0] - 1)
+
+  def one(slot):
+    pose = scene.poses[slot]
     rot = quat_to_matrix(pose[3:], xp=jnp)
     local = (points - pose[:3]) @ rot  # R^T (p - t), row-wise
-    return jax.vmap(lambda p: sdf_value(select_model(scene.models, index), p))(local)
+    return jax.vmap(lambda p: sdf_value(select_model(scene.models, ids[slot]), p))(local)
 
-  ids = jnp.clip(scene.object_ids, 0, scene.models.sdf.shape[0] - 1)
-  dist = jax.vmap(one)(ids, scene.poses)
-  return jnp.where(scene.mask[:, None], dist, jnp.inf)
+  empty = lambda slot: jnp.full(points.shape[:1], jnp.inf, points.dtype)
+  return jnp.stack([jax.lax.cond(scene.mask[slot], one, empty, slot) for slot in range(scene.mask.shape[0])])
 
 
 def bin_collision(points: jax.Array, bin_: Bin, tolerance: float) -> jax.Array:
