@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import pathlib
 import zipfile
 
 import yaml
@@ -393,3 +394,24 @@ def test_generated_shards_train_both_gqcnns_and_score_every_row(run, tmp_path):
   shard_path(broken, 1).write_bytes(shard_path(out, 1).read_bytes()[:1000])
   with pytest.raises(ShardError, match='shard-000001.npz'):
     train_run(config, broken, tmp_path / 'run2', progress=False, log=lambda *a: None)
+
+
+def test_labels_match_the_rows_recorded_before_the_throughput_work(run):
+  """The small run's rows equal, bit for bit, those dexjax 07484d8 made for the same config and seed, before the
+  labelling and rendering were made faster (issue 18: grids read in place, empty heap slots skipped, no shadow map).
+  Recorded with ``scripts/record_generate_reference.py``; a render backend other than the recording's draws other
+  depth images, so the comparison then needs that backend."""
+  reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_07484d8.npz')
+  config, out, _, _ = run
+  shards = [read_shard(shard_path(out, i)) for i in range(num_shards(config, NUM_IMAGES))]
+  from dexjax.render import DepthRenderer
+  renderer = DepthRenderer(8, 8)  # the backend the run's 'auto' chose here
+  backend = renderer.backend
+  renderer.close()
+  if backend != str(reference['render_backend']):
+    pytest.skip(f"recorded with the {reference['render_backend']} renderer, this machine renders with {backend}")
+  fields = [f for f in reference.files if f not in ('commit', 'render_backend')]
+  assert len(fields) == 11
+  for field in fields:
+    got = np.concatenate([s.rows[field] for s in shards])
+    np.testing.assert_array_equal(got, reference[field], err_msg=field)
