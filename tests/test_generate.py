@@ -415,3 +415,16 @@ def test_labels_match_the_rows_recorded_before_the_throughput_work(run):
   for field in fields:
     got = np.concatenate([s.rows[field] for s in shards])
     np.testing.assert_array_equal(got, reference[field], err_msg=field)
+
+
+def test_ray_workers_write_the_same_shards_as_the_serial_run(run, tmp_path):
+  """Scale-out is Ray's: two local Ray worker processes (each with its own renderer, labeller and one-thread
+  settling) write byte-identical shards to the module's serial run."""
+  pytest.importorskip('ray')
+  config, out, cache, _ = run
+  summary = generate_dataset(config, tmp_path, NUM_IMAGES, backend='ray', workers=2, cache_dir=str(cache),
+                             progress=False, preview=False)
+  assert summary['shards']['written'] == num_shards(config, NUM_IMAGES) and not summary['shards']['failed']
+  digest = lambda p: hashlib.sha256(p.read_bytes()).hexdigest()
+  for index in range(num_shards(config, NUM_IMAGES)):
+    assert digest(shard_path(tmp_path, index)) == digest(shard_path(out, index)), index

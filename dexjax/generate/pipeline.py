@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from dexjax.compile_cache import persistent_compilation_cache
 from dexjax.data.manifest import finish_shard
 from dexjax.data.shards import shard_seed
 from dexjax.generate import supervisor as sup
@@ -252,13 +253,15 @@ def generate_shard(index: int, config: GenerateConfig, out_dir: str, cache_dir: 
   """Makes and writes shard ``index`` of the run in ``out_dir``; returns its stats and row summary fields.
 
   The task a worker runs (picklable with `functools.partial`). The shard is written atomically and recorded in
-  the manifest (`dexjax.data.finish_shard`). Besides the counts, the stats hold ``wall_seconds`` of the task,
+  the manifest (`dexjax.data.finish_shard`). Programs compiled for it are kept in JAX's persistent cache
+  (`dexjax.compile_cache`), so a resumed run or a new worker process loads the labeller instead of compiling it. Besides the counts, the stats hold ``wall_seconds`` of the task,
   the worker's ``pid`` and ``warm`` (False for a process's first shard, which includes start-up and compiling).
   """
   start = time.perf_counter()
   generator = process_generator(config, cache_dir)
   warm = generator.shards_made > 0
-  images, rows, stats = generator.generate(index)
+  with persistent_compilation_cache():  # a worker loads the labeller another run (or worker) compiled
+    images, rows, stats = generator.generate(index)
   clock = time.perf_counter()
   finish_shard(out_dir, index, images, rows, {'config_fingerprint': generator.fingerprint, 'seed': config.seed})
   stats['seconds']['write'] += time.perf_counter() - clock
