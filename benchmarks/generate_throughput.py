@@ -14,7 +14,7 @@ epsilon = 1 %, reward M = 10, supervisor M = 25) on ``--objects``. Stages, each 
   end (settling, rendering, candidate sampling, labelling, writing), with ``stage_seconds`` splitting it.
 
 ``workers_run`` (with ``--workers`` > 1): a fresh run of ``--workers`` x (1 + ``--shards``) shards on that many
-processes (`python -m dexjax.generate`'s ``--backend process``): ``rows_per_s_including_startup`` over the whole
+processes (`python -m dexjax.generate`'s ``--backend process``, or ``ray`` with ``--backend ray``): ``rows_per_s_including_startup`` over the whole
 run, and ``rows_per_s``, each worker's rate after its first shard (start-up, compiling), summed;
 ``hours_for_5M_rows`` is 5 million rows at the better of the serial and the parallel steady rates.
 
@@ -103,9 +103,9 @@ def _workers_run(config: GenerateConfig, args, cache: str) -> dict:
   whole run, and the steady rate (each worker's rows/s after its first shard, summed)."""
   with tempfile.TemporaryDirectory() as out:
     total = generate_dataset(config, out, (1 + args.shards) * args.workers * config.dataset.images_per_shard,
-                             backend='process', workers=args.workers, cache_dir=cache, progress=False,
+                             backend=args.backend, workers=args.workers, cache_dir=cache, progress=False,
                              preview=False)
-  return {'workers': args.workers, 'shards': total['shards']['written'], 'rows': total['rows'],
+  return {'backend': args.backend, 'workers': args.workers, 'shards': total['shards']['written'], 'rows': total['rows'],
           'seconds': round(total['seconds'], 2), 'rows_per_s_including_startup': round(total['rows_per_s'], 2),
           'rows_per_s': round(total['warm_rows_per_s'] or 0.0, 2), 'failed': total['shards']['failed']}
 
@@ -117,6 +117,8 @@ def main() -> None:
   p.add_argument('--images-per-shard', type=int, default=8)
   p.add_argument('--baseline-rows', type=int, default=40)
   p.add_argument('--workers', type=int, default=2, help='also time a process-parallel run (1: skip)')
+  p.add_argument('--backend', choices=('process', 'ray'), default='process',
+                 help="the parallel run's backend (ray: a local Ray instance with --workers CPUs)")
   p.add_argument('--cache-dir', help='object and supervisor cache (default: a fresh temporary one, so setup_s is '
                                      'the cold cost)')
   args = p.parse_args()
