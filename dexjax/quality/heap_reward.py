@@ -177,7 +177,8 @@ def slot_distances(scene: HeapScene, points: jax.Array) -> jax.Array:
     return jax.vmap(lambda p: sdf_value(select_model(scene.models, ids[slot]), p))(local)
 
   empty = lambda slot: jnp.full(points.shape[:1], jnp.inf, points.dtype)
-  return jnp.stack([jax.lax.cond(scene.mask[slot], one, empty, slot) for slot in range(scene.mask.shape[0])])
+  body = lambda carry, slot: (carry, jax.lax.cond(scene.mask[slot], one, empty, slot))
+  return jax.lax.scan(body, None, jnp.arange(scene.mask.shape[0]))[1]  # one compiled slot, not P
 
 
 def bin_collision(points: jax.Array, bin_: Bin, tolerance: float) -> jax.Array:
