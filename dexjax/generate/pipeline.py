@@ -254,8 +254,9 @@ def generate_shard(index: int, config: GenerateConfig, out_dir: str, cache_dir: 
 
   The task a worker runs (picklable with `functools.partial`). The shard is written atomically and recorded in
   the manifest (`dexjax.data.finish_shard`). Programs compiled for it are kept in JAX's persistent cache
-  (`dexjax.compile_cache`), so a resumed run or a new worker process loads the labeller instead of compiling it. Besides the counts, the stats hold ``wall_seconds`` of the task,
-  the worker's ``pid`` and ``warm`` (False for a process's first shard, which includes start-up and compiling).
+  (`dexjax.compile_cache`), so a resumed run or a new worker process loads the labeller instead of compiling it.
+  Besides the counts, the stats hold ``wall_seconds`` of the task, the worker's ``pid`` and ``warm`` (False for a
+  process's first shard, which includes start-up and compiling).
   """
   start = time.perf_counter()
   generator = process_generator(config, cache_dir)
