@@ -15,8 +15,6 @@ import tempfile
 
 import numpy as np
 
-FIELDS = ('gripper', 'center', 'angle', 'grasp_depth', 'approach_angle', 'grasp_pose', 'reward', 'robust_probability',
-          'failure', 'target_slot', 'policy')
 
 
 def main() -> None:
@@ -27,7 +25,7 @@ def main() -> None:
   sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'tests'))
   from test_generate import NUM_IMAGES, SMALL  # pylint: disable=import-outside-toplevel
   import dexjax  # pylint: disable=import-outside-toplevel
-  from dexjax.data import read_shard, shard_path  # pylint: disable=import-outside-toplevel
+  from dexjax.data import ROW_SCHEMA, read_shard, shard_path  # pylint: disable=import-outside-toplevel
   from dexjax.generate.config import config_from_dict  # pylint: disable=import-outside-toplevel
   from dexjax.generate.run import generate_dataset, num_shards  # pylint: disable=import-outside-toplevel
   from dexjax.render import DepthRenderer  # pylint: disable=import-outside-toplevel
@@ -35,7 +33,8 @@ def main() -> None:
   with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
     generate_dataset(config, out, NUM_IMAGES, cache_dir=cache, progress=False, preview=False)
     shards = [read_shard(shard_path(out, i)) for i in range(num_shards(config, NUM_IMAGES))]
-  rows = {k: np.concatenate([s.rows[k] for s in shards]) for k in FIELDS}
+  fields = [k for k in ROW_SCHEMA if k != 'image_index']  # the labels; image indices depend only on the layout
+  rows = {k: np.concatenate([s.rows[k] for s in shards]) for k in fields}
   commit = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], capture_output=True, text=True, check=True,
                           cwd=args.repo).stdout.strip()
   renderer = DepthRenderer(8, 8)

@@ -174,7 +174,8 @@ def slot_distances(scene: HeapScene, points: jax.Array) -> jax.Array:
     pose = scene.poses[slot]
     rot = quat_to_matrix(pose[3:], xp=jnp)
     local = (points - pose[:3]) @ rot  # R^T (p - t), row-wise
-    return jax.vmap(lambda p: sdf_value(select_model(scene.models, ids[slot]), p))(local)
+    model = select_model(scene.models, ids[slot])
+    return jax.vmap(lambda p: sdf_value(model, p))(local)
 
   empty = lambda slot: jnp.full(points.shape[:1], jnp.inf, points.dtype)
   body = lambda carry, slot: (carry, jax.lax.cond(scene.mask[slot], one, empty, slot))
