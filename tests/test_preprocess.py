@@ -16,7 +16,7 @@ import pytest
 from PIL import Image
 from scipy.interpolate import griddata
 
-from dexjax.policy.depth_io import load_depth, load_segmask
+from dexjax.policy.depth_io import load_depth, load_segmask, save_depth
 from dexjax.policy.preprocess import (background_mask, fit_plane, inpaint_depth, plane_mask,
                                       prepare_observation)
 from dexjax.render.camera import Camera, Intrinsics, look_at
@@ -145,6 +145,30 @@ def test_load_depth_errors(tmp_path, kind, needle):
   with pytest.raises(ValueError, match='.') as error:
     load_depth(path)
   assert str(path) in str(error.value) and needle in str(error.value), str(error.value)
+
+
+def test_save_depth_writes_the_16_bit_png_load_depth_reads(tmp_path):
+  """Pillow decodes a single-channel 16-bit PNG of the depth in whole units (holes 0); `load_depth` reads it back
+  to within half a unit; depths a 16-bit unit cannot hold are refused, naming the file."""
+  depth = np.random.default_rng(1).uniform(0.3, 1.2, (H, W))
+  depth[3, 4], depth[5, 6], depth[7, 8] = np.nan, 0.0, -1.0  # invalid: written as 0
+  path = save_depth(tmp_path / 'd.png', depth)
+  with Image.open(path) as image:
+    assert image.mode in ('I;16', 'I;16B') and image.format == 'PNG'
+    raw = np.asarray(image)
+  valid = np.isfinite(depth) & (depth > 0)
+  np.testing.assert_array_equal(raw, np.where(valid, np.round(np.nan_to_num(depth) * 1000), 0))
+  back = load_depth(path)
+  assert np.abs(back[valid] - depth[valid]).max() <= 0.0005 + 1e-7 and np.all(back[~valid] == 0)
+  fine = load_depth(save_depth(tmp_path / 'f.png', depth, depth_scale=1e-4), depth_scale=1e-4)
+  assert np.abs(fine[valid] - depth[valid]).max() <= 0.00005 + 1e-7
+  for bad, scale in ((np.full((H, W), 70.0), 0.001), (np.full((H, W), 0.0004), 0.001)):
+    with pytest.raises(ValueError, match='do not fit a 16-bit PNG') as error:
+      save_depth(tmp_path / 'bad.png', bad, scale)
+    assert 'bad.png' in str(error.value)
+  with pytest.raises(ValueError, match='depth_scale'):
+    save_depth(tmp_path / 'bad.png', depth, depth_scale=0.0)
+  assert not (tmp_path / 'bad.png').exists()
 
 
 def test_load_depth_missing_file(tmp_path):

@@ -12,14 +12,15 @@ Every policy is a pytree called as ``policy(key, observation, samples=False) -> 
 * `GQCNNScorer`: a trained GQ-CNN as the quality function; `make_policy` builds the named policies of
   ``python -m dexjax.plan``.
 * `prepare_observation`: real sensor images to an `Observation` (holes inpainted, a segmask from the user, an
-  empty-bin image or a floor-plane fit); `load_depth` / `load_segmask` read ``.npy`` and 16-bit PNG files.
+  empty-bin image or a floor-plane fit); `load_depth` / `load_segmask` read ``.npy`` and 16-bit PNG files,
+  `save_depth` writes the PNG.
 """
 
 from dexjax.policy.actions import GraspAction, PolicySamples, action_from_grasp
 from dexjax.policy.cem import CEMParams, CEMPolicy, cem_policy
 from dexjax.policy.composite import (GreedyComposite, HeuristicComposite, RandomComposite, greedy_composite_policy,
                                      heuristic_composite_policy, plan_grasp, random_composite_policy)
-from dexjax.policy.depth_io import load_depth, load_segmask
+from dexjax.policy.depth_io import load_depth, load_segmask, save_depth
 from dexjax.policy.gmm import (GaussianMixture, fit_gaussian_mixture, gaussian_mixture_log_likelihood,
                                sample_gaussian_mixture)
 from dexjax.policy.heuristics import (ParallelJawForceClosureCentroid, SuctionPlanarityCentroid,
@@ -40,4 +41,5 @@ __all__ = [
     'fit_plane', 'gaussian_mixture_log_likelihood', 'greedy_composite_policy', 'heuristic_composite_policy',
     'inpaint_depth', 'load_depth', 'load_segmask', 'make_policy', 'observation', 'plan_grasp', 'plane_mask',
     'prepare_observation', 'random_composite_policy', 'random_policy', 'ranking_policy', 'sample_gaussian_mixture',
+    'save_depth',
 ]

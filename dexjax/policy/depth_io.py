@@ -1,6 +1,6 @@
 """Reading a user's depth image and segmask from files, with the checks that catch the usual real-image mistakes.
 
-Depth files (`load_depth`), recognised by their content, not their extension:
+Depth files (`load_depth`; `save_depth` writes the 16-bit PNG), recognised by their content, not their extension:
 
 * ``.npy``: an (H, W) or (H, W, 1) array; floats are metres, integers millimetres (a raw sensor dump) unless
   ``depth_scale`` says otherwise;
@@ -174,6 +174,38 @@ def load_depth(path: str | os.PathLike, depth_scale: float | None = None) -> np.
   return check_depth_image(_real(name, raw).astype(np.float64) * scale, name)
 
 
+def save_depth(path: str | os.PathLike, depth: np.ndarray, depth_scale: float = 0.001) -> Path:
+  """Writes a depth image as a single-channel 16-bit PNG of integer units, as depth sensors and ROS (``16UC1``)
+  store them; `load_depth` reads it back (with the same ``depth_scale``) to within half a unit.
+
+  Args:
+    path: the PNG to write.
+    depth: (H, W) or (H, W, 1) depth, metres; invalid pixels (0, NaN, inf, negative) are written as 0.
+    depth_scale: metres per stored unit (0.001: millimetres, 65.535 m at most).
+  Returns:
+    ``path`` as a Path.
+  Raises:
+    ValueError: naming the file: wrong shape or dtype, a bad ``depth_scale``, a valid depth beyond 65,535 units
+      or below half a unit (it would read back as a hole).
+  """
+  name = os.fspath(path)
+  scale = _depth_scale(name, depth_scale, 0.001)
+  depth = _single_channel(name, _real(name, depth), 'depth image').astype(np.float64)
+  valid = np.isfinite(depth) & (depth > 0)
+  units = np.round(np.where(valid, depth, 0.0) / scale)
+  if valid.any() and (units[valid].max() > np.iinfo(np.uint16).max or units[valid].min() < 1):
+    far, near = float(depth[valid].max()), float(depth[valid].min())
+    raise ValueError(f'{name}: depths {near:.6g}-{far:.6g} m do not fit a 16-bit PNG at depth_scale {scale:g} m per '
+                     f'unit (expected {0.5 * scale:.6g}-{np.iinfo(np.uint16).max * scale:.6g} m): choose another '
+                     'depth_scale')
+  try:
+    from PIL import Image
+  except ImportError:
+    raise ImportError(f'{name}: writing PNG files needs Pillow: pip install pillow') from None
+  Image.fromarray(units.astype(np.uint16)).save(path, format='PNG')
+  return Path(path)
+
+
 def load_segmask(path: str | os.PathLike, shape: tuple[int, int]) -> np.ndarray:
   """Reads a segmask into (H, W) bool: non-zero (any channel of a colour PNG; alpha ignored) = object.
 
@@ -201,4 +233,4 @@ def load_segmask(path: str | os.PathLike, shape: tuple[int, int]) -> np.ndarray:
   return mask
 
 
-__all__ = ['MAX_MEDIAN_DEPTH', 'MIN_MEDIAN_DEPTH', 'check_depth_image', 'load_depth', 'load_segmask']
+__all__ = ['MAX_MEDIAN_DEPTH', 'MIN_MEDIAN_DEPTH', 'check_depth_image', 'load_depth', 'load_segmask', 'save_depth']
