@@ -14,10 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use('Agg')
-import matplotlib.pyplot as plt  # noqa: E402  pylint: disable=g-import-not-at-top,wrong-import-position
+from matplotlib.figure import Figure  # no pyplot: drawing a figure leaves the caller's backend and figures alone
 
 _MAX_OBJECTS = 60  # objects drawn per per-object panel (the hardest first when there are more)
 
@@ -30,7 +27,8 @@ def plot_reliability(results: Mapping[str, Any], path: str | os.PathLike[str]) -
   """Reliability per policy (bar groups) and level (bars) with 95 % Wilson intervals."""
   policies = results['policies']
   levels = sorted({level for entry in policies.values() for level in entry['per_level']}, key=str)
-  fig, ax = plt.subplots(figsize=(max(5.0, 1.2 + 1.7 * len(policies) * max(1.0, len(levels) / 2)), 4.0))
+  fig = Figure(figsize=(max(5.0, 1.2 + 1.7 * len(policies) * max(1.0, len(levels) / 2)), 4.0))
+  ax = fig.subplots()
   width = 0.8 / max(1, len(levels))
   for j, level in enumerate(levels):
     xs, ys, lo, hi = [], [], [], []
@@ -54,7 +52,6 @@ def plot_reliability(results: Mapping[str, Any], path: str | os.PathLike[str]) -
   ax.set_title(f"Universal Picking benchmark, judged by {results['config']['judge']}", fontsize=10)
   fig.tight_layout()
   fig.savefig(path, dpi=120)
-  plt.close(fig)
 
 
 def plot_per_object(results: Mapping[str, Any], path: str | os.PathLike[str]) -> None:
@@ -62,8 +59,8 @@ def plot_per_object(results: Mapping[str, Any], path: str | os.PathLike[str]) ->
   policy, objects in difficulty order."""
   policies = results['policies']
   order = list(results['object_difficulty'])[:_MAX_OBJECTS]
-  fig, axes = plt.subplots(1, len(policies), figsize=(3.2 * len(policies) + 1.5, 0.22 * len(order) + 1.2),
-                           sharey=True, squeeze=False)
+  fig = Figure(figsize=(3.2 * len(policies) + 1.5, 0.22 * len(order) + 1.2))
+  axes = fig.subplots(1, len(policies), sharey=True, squeeze=False)
   for ax, (name, entry) in zip(axes[0], policies.items()):
     ys, xs, lo, hi = [], [], [], []
     for y, obj in enumerate(order):
@@ -83,13 +80,13 @@ def plot_per_object(results: Mapping[str, Any], path: str | os.PathLike[str]) ->
   axes[0][0].invert_yaxis()
   fig.tight_layout()
   fig.savefig(path, dpi=120)
-  plt.close(fig)
 
 
 def plot_difficulty(results: Mapping[str, Any], path: str | os.PathLike[str]) -> None:
   """Fig. S3: each object's reliability averaged over the policies, hardest first, +- one standard error."""
   difficulty = list(results['object_difficulty'].items())[:_MAX_OBJECTS]
-  fig, ax = plt.subplots(figsize=(max(4.0, 0.18 * len(difficulty) + 1.5), 3.4))
+  fig = Figure(figsize=(max(4.0, 0.18 * len(difficulty) + 1.5), 3.4))
+  ax = fig.subplots()
   xs = range(len(difficulty))
   ax.bar(xs, [d['reliability'] for _, d in difficulty], yerr=[d['sem'] for _, d in difficulty], capsize=2)
   ax.set_xticks(list(xs))
@@ -99,7 +96,6 @@ def plot_difficulty(results: Mapping[str, Any], path: str | os.PathLike[str]) ->
   ax.set_title('Object difficulty (hardest first)', fontsize=10)
   fig.tight_layout()
   fig.savefig(path, dpi=120)
-  plt.close(fig)
 
 
 def save_figures(results: Mapping[str, Any], out_dir: str | os.PathLike[str]) -> list[str]:

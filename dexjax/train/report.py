@@ -49,13 +49,12 @@ def plot_curves(out_dir: str | os.PathLike) -> Path | None:
   records = read_records(out_dir)
   if not records:
     return None
-  import matplotlib  # pylint: disable=g-import-not-at-top
-  matplotlib.use('Agg')
-  from matplotlib import pyplot as plt  # pylint: disable=g-import-not-at-top
+  from matplotlib.figure import Figure  # pylint: disable=g-import-not-at-top  (no pyplot: the caller's backend stays)
 
   panels = [('loss', ('train_loss', 'val_loss')), ('balanced accuracy', ('val_balanced_accuracy',)),
             ('average precision', ('val_average_precision',))]
-  fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.4), constrained_layout=True)
+  fig = Figure(figsize=(4.2 * len(panels), 3.4), constrained_layout=True)
+  axes = fig.subplots(1, len(panels))
   grippers = sorted({r['gripper'] for r in records})
   for ax, (title, keys) in zip(axes, panels):
     for gripper in grippers:
@@ -73,7 +72,6 @@ def plot_curves(out_dir: str | os.PathLike) -> Path | None:
     ax.legend(fontsize=7)
   path = Path(out_dir) / CURVES_FILE
   fig.savefig(path, dpi=110)
-  plt.close(fig)
   return path
 
 
