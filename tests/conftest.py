@@ -91,27 +91,18 @@ def numpy_symmetric_view():
   return _numpy_symmetric_view
 
 
-def _notebook_code(name: str, replacements: dict[str, str] | None = None) -> str:
-  """The code cells of ``notebooks/<name>`` in order, shell and magic lines dropped, with each ``full: reduced``
-  replacement applied (each ``full`` must occur: a renamed setting fails the test instead of running it full size)."""
-  import json  # pylint: disable=import-outside-toplevel
-  import pathlib  # pylint: disable=import-outside-toplevel
-  path = pathlib.Path(__file__).parent.parent / "notebooks" / name
-  lines = []
-  for cell in json.loads(path.read_text())["cells"]:
-    if cell["cell_type"] == "code":
-      lines += [l for l in "".join(cell["source"]).splitlines() if not l.lstrip().startswith(("%", "!"))]
-  src = "\n".join(lines)
-  for full, reduced in (replacements or {}).items():
-    assert full in src, f"{name}: {full!r} not found"
-    src = src.replace(full, reduced)
-  return src
+@pytest.fixture
+def run_notebook(tmp_path, cache_dir, monkeypatch):
+  """f(name, parameters=None, values=None) -> `notebook_kernel.NotebookRun`: ``notebooks/<name>`` executed in a real
+  Jupyter kernel with its parameter cell overridden, ``values`` (name -> expression) evaluated in the kernel at the
+  end; the kernel's object cache is the session's ``cache_dir``. See tests/notebook_kernel.py."""
+  from notebook_kernel import run_notebook as run  # pylint: disable=import-outside-toplevel
+  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
+  monkeypatch.delenv("DEXJAX_MODEL", raising=False)  # the shipped models
 
-
-@pytest.fixture(scope="session")
-def notebook_code():
-  """f(name, replacements) -> the code of a notebook in ``notebooks/`` (small settings substituted)."""
-  return _notebook_code
+  def _run(name, parameters=None, values=None, timeout=1200):
+    return run(name, tmp_path, parameters, values, timeout)
+  return _run
 
 
 @pytest.fixture(scope="module", autouse=True)

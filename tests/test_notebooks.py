@@ -1,111 +1,81 @@
-"""The notebooks run top to bottom (code cells executed in order, at a smaller batch size)."""
+"""What every notebook of ``notebooks/`` shares: the Colab-only install cell, a parameter cell, no stored outputs,
+a line in notebooks/README.md and a test that runs it in a real kernel (tests/test_notebook_<name>.py)."""
 
 from __future__ import annotations
 
-import matplotlib
-import numpy as np
+import importlib.util
+import re
+import subprocess
+import sys
+import types
+
+import pytest
+
+from notebook_kernel import NOTEBOOKS, PARAMETERS_TAG, code_cells, parameter_names
+
+ROOT = NOTEBOOKS.parent
+PATHS = sorted(NOTEBOOKS.glob("*.ipynb"))
+_FIND_SPEC = importlib.util.find_spec  # the real one (the tests patch it)
 
 
-def test_grasp_quality_notebook_runs(cache_dir, monkeypatch, notebook_code):
-  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
-  matplotlib.use("Agg")
-  src = notebook_code("grasp_quality.ipynb", {"N = 2000": "N = 64"})
-  scope: dict = {}
-  exec(compile(src, "grasp_quality.ipynb", "exec"), scope)
-  p = scope["p_suction"]
-  finite = p[~np.isnan(p)]
-  assert p.shape == (64,) and finite.size > 32 and np.all((finite >= 0) & (finite <= 1))
-  probs = scope["probs"]
-  assert float(probs[0]) >= 0.5 and float(probs[-1]) <= 0.2  # light objects hold, past the payload they drop
+def _ci_gl_packages() -> list[str]:
+  """The Debian packages `.ci/run` installs for headless rendering (the README's set-up command has the same)."""
+  match = re.search(r'^gl_packages="([^"]+)"', (ROOT / ".ci" / "run").read_text(), re.M)
+  assert match, ".ci/run: gl_packages not found"
+  return match.group(1).split()
 
 
-def test_policy_notebook_runs(cache_dir, monkeypatch, notebook_code):
-  """Every policy plans a grasp on an object of the rendered heap; the CEM keeps m + 1 rounds of samples; a noisy
-  image with holes is prepared (inpainted, background-segmented) and planned on. Small CEM and candidate counts."""
-  import jax
-  from scipy import ndimage
-
-  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
-  monkeypatch.delenv("DEXJAX_MODEL", raising=False)  # the shipped models
-  matplotlib.use("Agg")
-  small = {"NUM_SEED = 250": "NUM_SEED = 40", "NUM_RESAMPLE = 50": "NUM_RESAMPLE = 16",
-           "NUM_ITERATIONS = 3": "NUM_ITERATIONS = 1", "NUM_CANDIDATES = 400": "NUM_CANDIDATES = 48"}
-  src = notebook_code("policy.ipynb", small)
-  scope: dict = {}
-  exec(compile(src, "policy.ipynb", "exec"), scope)
-
-  objects = scope["objects"]
-  assert objects.shape == (500, 500) and 0.01 < objects.mean() < 0.5
-
-  def pixel(action):
-    u, v = np.floor(np.asarray(action.center) + 0.5).astype(int)
-    return v, u
-
-  actions = scope["actions"]
-  assert set(actions) == set(scope["POLICY_NAMES"])
-  for name, action in actions.items():
-    assert bool(action.valid), name
-    # Grasps are centred on the mask (here the rendered objects); see the notebook's note on parallel-jaw centres.
-    assert objects[pixel(action)], f"{name}: grasp centre {np.asarray(action.center)} is not on an object"
-    assert np.isfinite(float(action.probability)) and 0.0 <= float(action.probability) <= 1.0, name
-    assert np.all(np.isfinite(np.asarray(action.pose))), name
-  ambidextrous = actions["ambidextrous"]
-  per_gripper = ambidextrous.per_gripper
-  assert np.all(np.asarray(per_gripper.valid))  # one CEM plan per gripper
-  assert float(ambidextrous.probability) == float(np.max(per_gripper.probability))  # the argmax over grippers
-  assert actions["parallel_jaw"].gripper_name == "parallel_jaw" and actions["suction"].gripper_name == "suction"
-
-  m = scope["CEM"].num_iterations
-  samples = scope["samples"]
-  assert m == 1 and samples["valid"].shape == (2, m + 1, 40)  # (grippers, rounds, max(n, c))
-  counts = samples["valid"].sum(axis=-1)
-  assert np.all(counts[:, 0] > 0) and np.all((counts[:, 1:] > 0) & (counts[:, 1:] <= 16)), counts
-  picture = scope["picture"]  # save_plan_png: one panel per round (m + 1) and the plan
-  assert picture.ndim == 3 and picture.shape[1] > 2 * picture.shape[0]
-
-  info, real_obs, real_action = scope["info"], scope["real_obs"], scope["real_action"]
-  assert info["segmentation"] == "background" and info["invalid_fraction"] > 0.04
-  depth, mask = np.asarray(real_obs.depth), np.asarray(real_obs.mask)
-  assert np.all(np.isfinite(depth) & (depth > 0))  # holes inpainted
-  assert not np.any(mask & (scope["noisy"] <= 0))  # no grasp centred on a hole
-  assert (mask & objects).sum() > 0.9 * mask.sum() and (mask & objects).sum() > 0.5 * objects.sum()
-  assert bool(real_action.valid) and mask[pixel(real_action)]
-  assert ndimage.binary_dilation(objects, iterations=2)[pixel(real_action)]
-  assert jax.tree.structure(real_obs) == jax.tree.structure(scope["obs"])
+def _run_install_cell(source: str, monkeypatch, on_colab: bool, installed: bool) -> list:
+  """Executes an install cell with ``subprocess.check_call`` recorded (not run); returns the recorded commands."""
+  calls = []
+  monkeypatch.setattr(subprocess, "check_call", lambda cmd, **kw: calls.append((cmd, kw)) or 0)
+  if on_colab:
+    monkeypatch.setitem(sys.modules, "google.colab", types.ModuleType("google.colab"))
+  else:
+    monkeypatch.delitem(sys.modules, "google.colab", raising=False)
+  monkeypatch.setattr(importlib.util, "find_spec", lambda n, *a: (None if n == "dexjax" and not installed
+                                                                  else _FIND_SPEC(n, *a)))
+  monkeypatch.delenv("DEXJAX_PIP_SPEC", raising=False)
+  exec(compile(source, "install cell", "exec"), {})  # pylint: disable=exec-used
+  return calls
 
 
-def test_analysis_notebook_runs(cache_dir, monkeypatch, notebook_code):
-  """Fig. S1 on the shipped models: filters, top-activating crops and a t-SNE per layer for both grippers, and the
-  notebook's verdict on the seed's finding. Few images and examples."""
-  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
-  matplotlib.use("Agg")
-  small = {"NUM_IMAGES = 48": "NUM_IMAGES = 16", "NUM_TSNE = 1000": "NUM_TSNE = 150", "TOP_K = 8": "TOP_K = 3"}
-  src = notebook_code("analysis.ipynb", small)
-  shown = []
-  scope: dict = {"display": shown.append}
-  exec(compile(src, "analysis.ipynb", "exec"), scope)
-  assert len(shown) == 6  # (A), (B), (C) for each gripper
-  assert all(isinstance(fig, matplotlib.figure.Figure) for fig in shown)
-  layers, names = scope["layers"], scope["names"]
-  assert set(layers) == {"parallel_jaw", "suction"}
-  for gripper, result in layers.items():
-    assert list(result) == list(names)
-    assert all(0.0 <= r["separation"] <= 1.0 and r["embedding"].shape == (150, 2) for r in result.values())
-    assert result["output"]["separation"] > 0.6, gripper  # the logits separate what the network predicts well
-  assert set(scope["verdict"]) == {"parallel_jaw", "suction"}
+def test_there_is_a_notebook_per_workflow():
+  assert {p.stem for p in PATHS} >= {"grasp_quality", "objects_heaps", "depth_images", "generate_train", "policy",
+                                     "analysis", "benchmark", "gradients"}
 
 
-def test_benchmark_notebook_runs(cache_dir, monkeypatch, notebook_code):
-  """A tiny benchmark: both judges on every attempt, the table, the figures and the judges' confusion counts."""
-  monkeypatch.setenv("DEXJAX_CACHE", str(cache_dir))
-  matplotlib.use("Agg")
-  small = {"PER_TRIAL = 6": "PER_TRIAL = 2", "TRIALS = 2": "TRIALS = 1", "MAX_ATTEMPTS = 12": "MAX_ATTEMPTS = 3",
-           'POLICIES = ["ambidextrous", "suction_heuristic", "random"]': 'POLICIES = ["ambidextrous", "random"]'}
-  src = notebook_code("benchmark.ipynb", small)
-  scope: dict = {}
-  exec(compile(src, "benchmark.ipynb", "exec"), scope)
-  results, records = scope["results"], scope["records"]
-  assert set(results["policies"]) == {"ambidextrous", "random"}
-  assert sum(scope["confusion"].values()) == len(records) == sum(e["attempts"] for e in results["policies"].values())
-  assert set(scope["figures"]) == {"reliability.png", "per_object.png", "difficulty.png"}
-  assert all(r["verdicts"].keys() == {"analytic", "physics"} for r in records)
+@pytest.mark.parametrize("path", PATHS, ids=lambda p: p.stem)
+def test_first_code_cell_installs_on_colab_only(path, monkeypatch):
+  """On Colab without dexjax: the GL packages of .ci/run with apt-get, then dexjax with pip; elsewhere, or when
+  dexjax is already installed: nothing."""
+  source = code_cells(path)[0].source
+  assert source == code_cells(PATHS[0])[0].source, f"{path.name}: first code cell differs from {PATHS[0].name}'s"
+  assert _run_install_cell(source, monkeypatch, on_colab=False, installed=False) == []
+  assert _run_install_cell(source, monkeypatch, on_colab=True, installed=True) == []
+  calls = _run_install_cell(source, monkeypatch, on_colab=True, installed=False)
+  assert len(calls) == 2, calls
+  (apt, apt_kw), (pip, _) = calls
+  assert apt_kw.get("shell") and apt.startswith("apt-get install") and "--no-install-recommends" in apt
+  assert all(package in apt.split() for package in _ci_gl_packages()), apt
+  assert pip[:4] == [sys.executable, "-m", "pip", "install"] and pip[-1] == "dexjax"
+
+
+@pytest.mark.parametrize("path", PATHS, ids=lambda p: p.stem)
+def test_second_code_cell_is_the_parameter_cell(path):
+  cell = code_cells(path)[1]
+  assert PARAMETERS_TAG in cell.metadata.get("tags", []), f"{path.name}: second code cell is not tagged"
+  names = parameter_names(cell.source)
+  assert names and all(n.isupper() for n in names), names
+  lines = [l for l in cell.source.splitlines() if l.strip() and not l.lstrip().startswith("#")]
+  assert all(re.match(r"^[A-Z_0-9]+\s*=|^\s", l) or l.strip() in "])}" for l in lines), cell.source
+
+
+@pytest.mark.parametrize("path", PATHS, ids=lambda p: p.stem)
+def test_notebook_is_stored_without_outputs_and_is_tested_and_listed(path):
+  for cell in code_cells(path):
+    assert not cell.get("outputs") and cell.get("execution_count") is None, f"{path.name}: stored outputs"
+  test = ROOT / "tests" / f"test_notebook_{path.stem}.py"
+  assert test.exists() and f'"{path.name}"' in test.read_text(), f"{path.name}: no {test.name} runs it"
+  readme = (NOTEBOOKS / "README.md").read_text()
+  assert f"({path.name})" in readme and f"notebooks/{path.name})" in readme, f"{path.name}: not in notebooks/README.md"
