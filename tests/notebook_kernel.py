@@ -83,8 +83,7 @@ def _with_parameters(nb, name: str, parameters: dict[str, Any]):
 
 def _probe_cell(values: dict[str, str], path: pathlib.Path):
   import nbformat  # pylint: disable=import-outside-toplevel
-  items = ",\n".join(f"    {key!r}: {expression}" for key, expression in values.items())
-  source = textwrap.dedent(f"""\
+  header = textwrap.dedent("""\
       import pickle as _pickle
       import jax as _jax
       import numpy as _np
@@ -96,13 +95,10 @@ def _probe_cell(values: dict[str, str], path: pathlib.Path):
               return type(x)(_host(v) for v in x)
           return _np.asarray(x) if isinstance(x, _jax.Array) else x
 
-      _values = {{
-      {items}
-      }}
-      with open({str(path)!r}, "wb") as _f:
-          _pickle.dump(_host(_values), _f)
       """)
-  return nbformat.v4.new_code_cell(source)
+  items = "".join(f"    {key!r}: {expression},\n" for key, expression in values.items())
+  dump = f"with open({str(path)!r}, 'wb') as _f:\n    _pickle.dump(_host(_values), _f)\n"
+  return nbformat.v4.new_code_cell(header + "_values = {\n" + items + "}\n" + dump)
 
 
 def run_notebook(name: str, workdir: pathlib.Path, parameters: dict[str, Any] | None = None,
