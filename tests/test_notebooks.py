@@ -55,10 +55,10 @@ def test_first_code_cell_installs_on_colab_only(path, monkeypatch):
   assert _run_install_cell(source, monkeypatch, on_colab=True, installed=True) == []
   calls = _run_install_cell(source, monkeypatch, on_colab=True, installed=False)
   assert len(calls) == 2, calls
-  (apt, apt_kw), (pip, _) = calls
+  (apt, apt_kw), (pip, pip_kw) = calls
   assert apt_kw.get("shell") and apt.startswith("apt-get install") and "--no-install-recommends" in apt
   assert all(package in apt.split() for package in _ci_gl_packages()), apt
-  assert pip[:4] == [sys.executable, "-m", "pip", "install"] and pip[-1] == "dexjax"
+  assert pip_kw.get("shell") and pip == f"{sys.executable} -m pip install -q 'dexjax'", pip
 
 
 @pytest.mark.parametrize("path", PATHS, ids=lambda p: p.stem)
