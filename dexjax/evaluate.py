@@ -1,13 +1,16 @@
 """Score trained GQ-CNNs on a generated dataset and print one JSON object.
 
   python -m dexjax.evaluate --checkpoint CKPT --data DIR [--split all|train|val] [--gripper G] [--batch-size B]
+                            [--intervals object|heap]
 
 CKPT is ``pretrained`` (the models shipped with dexjax, docs/models.md), a training run directory (every gripper
 trained in it), ``RUN/<gripper>``, a saved model directory or a model file (``.msgpack``).
 The data may come from other objects than the training set. ``--split all`` (the default) scores every row;
 ``train`` / ``val`` use the run's split rule (from ``RUN/config.yaml`` when present, else the default). Prints
 ``{"checkpoint", "data", "split", "grippers": {gripper: {accuracy, balanced_accuracy, precision, recall,
-average_precision, loss, examples, positives, ...}}}``. Exit code 0, or 2 for bad input (docs/errors.md).
+average_precision, loss, examples, positives, ...}}}``; ``--intervals object`` adds ``intervals``: 95 % bootstrap
+intervals of the balanced accuracy and AP over the dataset's objects (``heap``: its heaps). Exit code 0, or 2 for
+bad input (docs/errors.md).
 """
 
 from __future__ import annotations
@@ -33,6 +36,10 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--views', choices=('saved', 'single', 'symmetric'), default='saved',
                  help="'symmetric': average each prediction over the crop's four symmetric views, 'single': one "
                       "view; default: as the model was saved (the shipped models: symmetric)")
+  p.add_argument('--intervals', choices=('object', 'heap'),
+                 help='add 95%% bootstrap intervals of the balanced accuracy and AP, resampling whole objects '
+                      '(the grasped object of each row) or heaps: how precise the scores are')
+  p.add_argument('--resamples', type=int, default=1000, help='bootstrap resamples for --intervals (default 1000)')
   p.add_argument('--no-progress', action='store_true', help='no progress bar')
   return p
 
@@ -58,6 +65,8 @@ def main(argv: list[str] | None = None) -> int:
   checkpoint = args.checkpoint if args.checkpoint == PRETRAINED else Path(args.checkpoint).absolute()
   if args.batch_size < 1:
     raise ValueError(f'--batch-size: expected an integer >= 1, got {args.batch_size}')
+  if args.resamples < 1:
+    raise ValueError(f'--resamples: expected an integer >= 1, got {args.resamples}')
   if not os.path.isdir(args.data) or not list_shards(args.data):
     raise FileNotFoundError(f'{args.data}: no dataset shards (shard-*.npz)')
   config = _run_config(Path(checkpoint)) if checkpoint != PRETRAINED else TrainConfig()
@@ -69,8 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     models = [dataclasses.replace(m, symmetric_views=args.views == 'symmetric') for m in models]
   if not models:
     raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {sorted(found)})')
-  results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress)
-             for m in models}
+  results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress,
+                                      interval_by=args.intervals, num_resamples=args.resamples) for m in models}
   print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': os.fspath(Path(args.data).absolute()),
                     'split': args.split, 'symmetric_views': {m.gripper: m.symmetric_views for m in models},
                     'grippers': results}, indent=1))

@@ -80,8 +80,8 @@ def _run_models(run: Path, grippers: list[str] | None, symmetric_views: bool) ->
 
 def score_run(run: Path, evals: dict[str, Path], models: dict | None = None) -> dict:
   """Each gripper's best model (``models``, default `_run_models` of every gripper, one view) on its run's
-  validation split and on every evaluation dataset (the validation split is scored again for a model that
-  averages symmetric views; the training records are single-view)."""
+  validation split and on every evaluation dataset, with 95 % intervals over its objects (the validation split is
+  scored again for a model that averages symmetric views; the training records are single-view)."""
   config = load_train_config(run / CONFIG_FILE)
   scores = {}
   for gripper, model in (_run_models(run, None, False) if models is None else models).items():
@@ -93,8 +93,8 @@ def score_run(run: Path, evals: dict[str, Path], models: dict | None = None) -> 
       metrics = evaluate_model(model, data, config, 'val')
       entry['validation'] = {k: metrics.get(k) for k in METRICS}
     for name, path in evals.items():
-      metrics = evaluate_model(model, path, config, 'all')
-      entry[name] = {k: metrics.get(k) for k in METRICS}
+      metrics = evaluate_model(model, path, config, 'all', interval_by='object')
+      entry[name] = {k: metrics.get(k) for k in (*METRICS, 'intervals')}
     scores[gripper] = entry
   return scores
 

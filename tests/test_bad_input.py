@@ -289,6 +289,8 @@ def test_binary_empty_and_directory_inputs_name_the_file(files, tmp_path, capsys
   _bad(capsys, train_main, ['--data', binary, '--out', tmp_path / 'run', '--no-progress'], 'binary.bin',
        'no dataset shards')
   _bad(capsys, evaluate_main, ['--checkpoint', tmp_path / 'nothing', '--data', binary], 'no dataset shards')
+  _bad(capsys, evaluate_main, ['--checkpoint', 'pretrained', '--data', tmp_path, '--resamples', '0'], '--resamples',
+       '>= 1')
   _bad(capsys, objects_main, ['hulls', files['binary']], 'binary.bin', code=2)
   assert not (tmp_path / 'gen').exists() and not (tmp_path / 'run').exists() and not out.exists()
 

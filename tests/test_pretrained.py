@@ -104,7 +104,8 @@ def unseen(tmp_path_factory, cache_dir):
 @pytest.mark.heavy
 def test_evaluate_pretrained_scores_unseen_objects(unseen, capsys):
   from dexjax.evaluate import main as evaluate_main  # pylint: disable=g-import-not-at-top
-  assert evaluate_main(['--checkpoint', 'pretrained', '--data', str(unseen), '--no-progress']) == 0
+  assert evaluate_main(['--checkpoint', 'pretrained', '--data', str(unseen), '--no-progress', '--intervals', 'object',
+                        '--resamples', '200']) == 0
   result = json.loads(capsys.readouterr().out)
   assert result['checkpoint'] == 'pretrained' and set(result['grippers']) == set(GRIPPERS)
   for gripper, metrics in result['grippers'].items():
@@ -112,6 +113,12 @@ def test_evaluate_pretrained_scores_unseen_objects(unseen, capsys):
     # Far above chance on objects it never saw (the model card has the full measurement on thousands of rows).
     assert metrics['balanced_accuracy'] > 0.7, (gripper, metrics)
     assert metrics['average_precision'] > 2 * metrics['positives'] / metrics['examples'], (gripper, metrics)
+    # Resampling the 9 objects (and the heaps of grasps that touch none): an interval around each score.
+    intervals = metrics['intervals']
+    assert intervals['by'] == 'object' and intervals['resamples'] == 200 and 9 <= intervals['groups'] <= 9 + 32
+    for key in ('balanced_accuracy', 'average_precision'):
+      lo, hi = intervals[key]
+      assert lo < metrics[key] < hi and hi - lo > 0.005, (gripper, key, intervals)
   assert result['symmetric_views'] == {g: pretrained(g).symmetric_views for g in GRIPPERS}
   # --views single scores the same rows with one view per grasp.
   assert evaluate_main(['--checkpoint', 'pretrained', '--data', str(unseen), '--no-progress', '--gripper', 'suction',

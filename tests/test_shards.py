@@ -12,7 +12,7 @@ import pytest
 from dexjax.data import loader, shards
 from dexjax.data import (ConfigMismatchError, ShardError, config_fingerprint, file_sha256, finish_shard,
                          iterate_rows, load_manifest, open_manifest, parse_shard_assignment, pending_shards,
-                         read_shard, shard_path, shard_seed, shard_seed_sequence, split_images, write_shard)
+                         read_shard, row_groups, shard_path, shard_seed, shard_seed_sequence, split_images, write_shard)
 
 CONFIG = {"images_per_shard": 4, "rows_per_image": 5, "size": [6, 7]}
 FP = config_fingerprint(CONFIG)
@@ -252,3 +252,24 @@ def test_object_split_keeps_validation_objects_out_of_training(tmp_path):
   labels = split_images(np.zeros(3), np.array([[min(val_objects), -1], [min(train_objects), -1],
                                                [min(train_objects), min(val_objects)]]), "object", 0.25, 3)
   assert labels.tolist() == [loader.VAL, loader.TRAIN, loader.VAL]
+
+
+def test_row_groups_name_the_contacted_object_or_else_the_heap(tmp_path):
+  _dataset(tmp_path, num_shards=3)
+  batches, _ = _rows_seen(tmp_path, "train", seed=0, val_fraction=0.0)
+  rows = {k: np.concatenate([b[k] for b in batches]) for k in ("shard_index", "image_index", "target_slot",
+                                                                "row_index")}
+  by_object = row_groups(tmp_path, rows["shard_index"], rows["image_index"], rows["target_slot"])
+  by_heap = row_groups(tmp_path, rows["shard_index"], rows["image_index"], rows["target_slot"], by="heap")
+  kinds = set()
+  for k, (s, r) in enumerate(zip(rows["shard_index"], rows["row_index"])):
+    shard = read_shard(shard_path(tmp_path, int(s)))
+    image, slot = shard.rows["image_index"][r], shard.rows["target_slot"][r]
+    heap = f"heap:{shard.images['heap_id'][image]}"
+    name = shard.images["object_names"][image, slot] if slot >= 0 else ""
+    assert by_heap[k] == heap
+    assert by_object[k] == (f"object:{name}" if name else heap)
+    kinds.add((slot >= 0, bool(name)))
+  assert kinds == {(True, True), (True, False), (False, False)}  # an object, an empty slot, no contact
+  with pytest.raises(ValueError, match="'by': expected 'heap' or 'object'"):
+    row_groups(tmp_path, rows["shard_index"], rows["image_index"], rows["target_slot"], by="image")

@@ -1,5 +1,5 @@
 """GQ-CNN training pieces: the optimiser schedule, a step that lowers the loss, overfitting 64 examples, and the
-validation metrics against a brute-force reference."""
+validation metrics against a brute-force reference (scikit-learn for the bootstrap)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from dexjax.models import GQCNNConfig
-from dexjax.train import (OptimizerConfig, average_precision, classification_metrics, create_state, cross_entropy,
-                          eval_logits, make_optimizer, train_step)
+from dexjax.train import (OptimizerConfig, average_precision, bootstrap_intervals, classification_metrics, create_state,
+                          cross_entropy, eval_logits, make_optimizer, train_step)
+from dexjax.train.metrics import _resampled_metrics
 
 SMALL = GQCNNConfig.small()
 _step = jax.jit(train_step)
@@ -98,6 +99,59 @@ def test_metrics_match_brute_force_definitions():
   assert perfect['average_precision'] == 1.0 and perfect['balanced_accuracy'] == 1.0
   empty = classification_metrics(np.array([0.2, 0.3]), np.array([0, 0]))
   assert empty['average_precision'] is None and empty['precision'] is None and empty['recall'] is None
+
+
+def test_resampled_metrics_equal_scikit_learn_on_the_replicated_rows():
+  from sklearn.metrics import average_precision_score, balanced_accuracy_score  # pylint: disable=g-import-not-at-top
+  rng = np.random.default_rng(2)
+  n, num_groups = 400, 23
+  groups = rng.integers(0, num_groups, n)
+  labels = rng.random(n) < 0.3
+  scores = np.round(np.clip(0.3 * labels + 0.7 * rng.random(n), 0, 1), 2)  # ties across and within groups
+  counts = rng.integers(0, 3, (7, num_groups))
+  balanced, ap = _resampled_metrics(scores, labels, groups, counts)
+  for r in range(len(counts)):
+    rows = np.repeat(np.arange(n), counts[r][groups])  # each group's rows as often as it was drawn
+    assert balanced[r] == pytest.approx(balanced_accuracy_score(labels[rows], scores[rows] > 0.5), abs=1e-12)
+    assert ap[r] == pytest.approx(average_precision_score(labels[rows], scores[rows]), abs=1e-12)
+
+
+def test_bootstrap_interval_of_independent_rows_is_the_binomial_one():
+  rng = np.random.default_rng(3)
+  n, p = 4000, 0.8
+  labels = np.arange(n) % 2 == 0
+  right = rng.random(n) < p
+  scores = np.where(right == labels, 0.9, 0.1)
+  result = bootstrap_intervals(scores, labels, np.arange(n), num_resamples=2000)
+  lo, hi = result['balanced_accuracy']
+  centre = classification_metrics(scores, labels)['balanced_accuracy']
+  half = 1.96 * np.sqrt(centre * (1 - centre) / n)  # Var of (TPR + TNR) / 2 with n / 2 rows per class
+  assert lo < centre < hi
+  assert (hi - lo) / 2 == pytest.approx(half, rel=0.15)
+  assert result['groups'] == n and result['resamples'] == 2000 and result['level'] == 0.95
+  assert bootstrap_intervals(scores, labels, np.arange(n), num_resamples=2000) == result  # seeded
+
+
+def test_bootstrap_resamples_whole_groups():
+  rng = np.random.default_rng(4)
+  n, copies = 300, 10
+  labels = rng.random(n) < 0.4
+  scores = np.clip(0.4 * labels + 0.6 * rng.random(n), 0, 1)
+  single = bootstrap_intervals(scores, labels, np.arange(n))
+  # Every row ten times, the copies in one group: the same data as far as the bootstrap is concerned.
+  grouped = bootstrap_intervals(np.repeat(scores, copies), np.repeat(labels, copies), np.repeat(np.arange(n), copies))
+  for key in ('balanced_accuracy', 'average_precision'):
+    np.testing.assert_allclose(grouped[key], single[key], atol=1e-12)
+  # Treated as independent, the copies would claim an interval about sqrt(10) times too narrow.
+  naive = bootstrap_intervals(np.repeat(scores, copies), np.repeat(labels, copies), np.arange(n * copies))
+  ratio = np.diff(single['balanced_accuracy'])[0] / np.diff(naive['balanced_accuracy'])[0]
+  assert 2.5 < ratio < 4.0
+  assert bootstrap_intervals(scores, np.zeros(n), np.arange(n))['average_precision'] is None  # no positives
+  assert bootstrap_intervals(scores, labels, np.zeros(n))['balanced_accuracy'] is None  # one group
+  with pytest.raises(ValueError, match='0 < level < 1'):
+    bootstrap_intervals(scores, labels, np.arange(n), level=95)
+  with pytest.raises(ValueError, match='one shape'):
+    bootstrap_intervals(scores, labels, np.arange(n - 1))
 
 
 def test_symmetrize_matches_reflections_about_the_grasp_pixel_and_negates_suction_angles(numpy_symmetric_view):

@@ -168,4 +168,27 @@ def _drain(buffer: _Buffer, rng: np.random.Generator, batch_size: int, drop_rema
     yield buffer.take(rng.choice(len(buffer), min(batch_size, len(buffer)), replace=False), stack_images)
 
 
-__all__ = ["TRAIN", "VAL", "iterate_rows", "list_shards", "split_images"]
+def row_groups(out_dir: str | os.PathLike, shard_index: np.ndarray, image_index: np.ndarray,
+               target_slot: np.ndarray, by: str = "object") -> np.ndarray:
+  """A group key (N,) str per row, given where the rows came from (as `iterate_rows` yields them).
+
+  ``by="heap"``: the row's heap (``"heap:<id>"``); ``by="object"``: the object its grasp contacts
+  (``"object:<name>"``), or its heap for a row that contacts none. Rows with one key are not independent samples
+  (`dexjax.train.bootstrap_intervals` resamples them together). Reads only the shards' image fields.
+  """
+  if by not in ("heap", "object"):
+    raise ValueError(f"row_groups: field 'by': expected 'heap' or 'object', got {by!r}")
+  shard_index, image_index = np.asarray(shard_index), np.asarray(image_index)
+  target_slot = np.asarray(target_slot)
+  keys = np.empty(len(shard_index), object)
+  for shard in np.unique(shard_index):
+    sel = np.flatnonzero(shard_index == shard)
+    with np.load(shard_path(out_dir, int(shard))) as arrays:
+      heaps = arrays["heap_id"][image_index[sel]]
+      names = arrays["object_names"][image_index[sel], np.maximum(target_slot[sel], 0)]
+    for k, heap, name, slot in zip(sel, heaps, names, target_slot[sel]):
+      keys[k] = f"object:{name}" if by == "object" and slot >= 0 and name else f"heap:{heap}"
+  return keys.astype(str)
+
+
+__all__ = ["TRAIN", "VAL", "iterate_rows", "list_shards", "row_groups", "split_images"]

@@ -10,9 +10,9 @@ from dexjax.train.config import (BEST_METRICS, CLASS_BALANCE, CheckpointConfig, 
                                  SplitConfig, TrainConfig, config_to_dict, load_train_config, train_config_from_dict)
 from dexjax.train.data import gripper_examples, pose_vectors, soft_labels, symmetrize
 from dexjax.train.distributed import data_mesh, replicate, shard_batch
-from dexjax.train.validation import evaluate_model, sample_examples
+from dexjax.train.validation import evaluate_model, predict_rows, sample_examples
 from dexjax.train.loop import Interrupted, check_trainable, final_state_params, sgd_step, train_gripper
-from dexjax.train.metrics import average_precision, classification_metrics
+from dexjax.train.metrics import average_precision, bootstrap_intervals, classification_metrics
 from dexjax.train.report import plot_curves, read_records
 from dexjax.train.run import check_run_dir, quickstart_dataset, train_run
 from dexjax.train.step import (OptimizerConfig, TrainState, create_state, cross_entropy, eval_logits,
@@ -21,6 +21,7 @@ from dexjax.train.step import (OptimizerConfig, TrainState, create_state, cross_
 __all__ = [
   'BEST_METRICS', 'CLASS_BALANCE', 'CheckpointConfig', 'Checkpointer', 'GripperStats', 'Interrupted', 'LoopConfig',
   'OptimizerConfig', 'QuickstartData', 'SplitConfig', 'TrainConfig', 'TrainState', 'average_precision',
+  'bootstrap_intervals', 'predict_rows',
   'check_run_dir', 'check_trainable', 'classification_metrics', 'config_to_dict', 'create_state', 'cross_entropy', 'data_mesh', 'dataset_stats',
   'eval_batches', 'eval_logits', 'evaluate_model', 'final_state_params', 'gripper_examples', 'learning_rate_schedule',
   'soft_labels',

@@ -26,6 +26,7 @@ from dexjax.train.config import TrainConfig
 from dexjax.train.data import gripper_examples
 
 _LOADER_BATCH = 256  # rows per loader batch (both grippers); only the grouping of reads, not the result
+_SOURCE_FIELDS = ('shard_index', 'image_index', 'target_slot')  # where an evaluated row came from
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,7 +141,8 @@ def eval_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str,
                  split: str = 'val') -> Iterator[dict[str, np.ndarray]]:
   """Every row of ``gripper`` in ``split`` (``'train'``, ``'val'`` or ``'all'``), once, in batches of exactly
   ``config.loop.eval_batch_size`` (the last padded): dicts as `train_batches` plus ``mask`` (B,) bool (False on
-  padding) and ``robust_probability`` (B,)."""
+  padding), ``robust_probability`` (B,) and where each row came from, ``shard_index``, ``image_index`` and
+  ``target_slot`` (B,) int32."""
   splits = ('train', 'val') if split == 'all' else (split,)
   size = config.loop.eval_batch_size
 
@@ -153,7 +155,9 @@ def eval_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str,
     n = len(examples['labels'])
     examples['mask'] = np.arange(size) < n
     examples['weights'] = examples['mask'].astype(np.float32)
-    for key in ('crops', 'poses', 'labels', 'robust_probability'):
+    for key in _SOURCE_FIELDS:
+      examples[key] = np.asarray(batch[key], np.int32)
+    for key in ('crops', 'poses', 'labels', 'robust_probability', *_SOURCE_FIELDS):
       pad = [(0, size - n)] + [(0, 0)] * (examples[key].ndim - 1)
       examples[key] = np.pad(examples[key], pad)
     yield examples

@@ -12,10 +12,11 @@ import numpy as np
 import optax
 from tqdm.auto import tqdm
 
+from dexjax.data.loader import row_groups
 from dexjax.models.saved import GraspQualityModel
 from dexjax.train.batches import eval_batches
 from dexjax.train.config import TrainConfig
-from dexjax.train.metrics import classification_metrics
+from dexjax.train.metrics import bootstrap_intervals, classification_metrics
 
 
 @jax.jit
@@ -23,27 +24,48 @@ def _logits(model: GraspQualityModel, crops: jax.Array, poses: jax.Array) -> jax
   return model.logits(crops, poses)
 
 
-def evaluate_model(model: GraspQualityModel, data_dir: str | os.PathLike, config: TrainConfig = TrainConfig(),
-                   split: str = 'val', progress: bool = False) -> dict[str, Any]:
-  """Metrics of ``model`` on the rows of its gripper in ``split`` (``'train'``, ``'val'`` or ``'all'``).
+def predict_rows(model: GraspQualityModel, data_dir: str | os.PathLike, config: TrainConfig = TrainConfig(),
+                 split: str = 'val', progress: bool = False) -> dict[str, np.ndarray]:
+  """``model``'s prediction for every row of its gripper in ``split`` (``'train'``, ``'val'`` or ``'all'``).
 
   ``config`` supplies the split rule (``split`` section) and the evaluation batch size; the crop size and window
-  are the model's. Returns `classification_metrics` (threshold 0.5 on p(success)) plus ``loss``, the mean
-  cross-entropy (None without examples).
+  are the model's. Returns (N,) arrays in the dataset's reading order: ``scores`` p(success), ``labels`` int32,
+  ``robust_probability`` (the label's Monte-Carlo estimate), ``loss`` (the cross-entropy of each row), and where
+  each row came from, ``shard_index``, ``image_index`` and ``target_slot`` (see `dexjax.data.row_groups`).
   """
   config = dataclasses.replace(config, model=model.config, crop_window=model.crop_window)
-  scores, labels, losses = [], [], []
+  keys = ('labels', 'robust_probability', 'shard_index', 'image_index', 'target_slot')
+  parts: dict[str, list] = {k: [] for k in ('scores', 'loss', *keys)}
   batches = eval_batches(data_dir, config, model.gripper, split)
   for batch in tqdm(batches, desc=f'evaluate {model.gripper}', unit='batch', disable=not progress, leave=False):
     logits = np.asarray(_logits(model, batch['crops'], batch['poses']))
     mask = batch['mask']
-    scores.append(np.asarray(jax.nn.softmax(logits[mask], -1)[:, 1]))
-    labels.append(batch['labels'][mask])
-    losses.append(np.asarray(optax.softmax_cross_entropy_with_integer_labels(logits[mask], batch['labels'][mask])))
-  scores = np.concatenate(scores) if scores else np.zeros(0)
-  labels = np.concatenate(labels) if labels else np.zeros(0, np.int32)
-  metrics = classification_metrics(scores, labels)
-  metrics['loss'] = float(np.concatenate(losses).mean()) if len(labels) else None
+    parts['scores'].append(np.asarray(jax.nn.softmax(logits[mask], -1)[:, 1]))
+    parts['loss'].append(np.asarray(optax.softmax_cross_entropy_with_integer_labels(logits[mask],
+                                                                                   batch['labels'][mask])))
+    for key in keys:
+      parts[key].append(np.asarray(batch[key])[mask])
+  empty = {'scores': np.float32, 'loss': np.float32, 'robust_probability': np.float32}
+  return {k: np.concatenate(v) if v else np.zeros(0, empty.get(k, np.int32)) for k, v in parts.items()}
+
+
+def evaluate_model(model: GraspQualityModel, data_dir: str | os.PathLike, config: TrainConfig = TrainConfig(),
+                   split: str = 'val', progress: bool = False, interval_by: str | None = None,
+                   num_resamples: int = 1000) -> dict[str, Any]:
+  """Metrics of ``model`` on the rows of its gripper in ``split`` (``'train'``, ``'val'`` or ``'all'``).
+
+  Returns `classification_metrics` of `predict_rows` (threshold 0.5 on p(success)) plus ``loss``, the mean
+  cross-entropy (None without examples). With ``interval_by`` (``'object'`` or ``'heap'``), also ``intervals``:
+  95 % `bootstrap_intervals` of the balanced accuracy and average precision resampling whole objects or heaps
+  (`dexjax.data.row_groups`) ``num_resamples`` times.
+  """
+  rows = predict_rows(model, data_dir, config, split, progress)
+  metrics = classification_metrics(rows['scores'], rows['labels'])
+  metrics['loss'] = float(rows['loss'].mean()) if len(rows['labels']) else None
+  if interval_by is not None:
+    groups = row_groups(data_dir, rows['shard_index'], rows['image_index'], rows['target_slot'], interval_by)
+    metrics['intervals'] = {'by': interval_by, **bootstrap_intervals(rows['scores'], rows['labels'], groups,
+                                                                     num_resamples)}
   return metrics
 
 
@@ -69,4 +91,4 @@ def sample_examples(model: GraspQualityModel, data_dir: str | os.PathLike, num: 
   return {k: v[order] for k, v in kept.items()}
 
 
-__all__ = ['evaluate_model', 'sample_examples']
+__all__ = ['evaluate_model', 'predict_rows', 'sample_examples']
