@@ -1,6 +1,6 @@
 """Heap settling throughput: MuJoCo C engine (`rollout`) vs. pybullet (the seed's engine) and MJX, one JSON object.
 
-  python benchmarks/heap_throughput.py [--quick] [--rollout-heaps 64] [--repeats 3] [--mjx-timeout-5 600]
+  python benchmarks/heap_throughput.py [--quick] [--no-mjx] [--rollout-heaps 64] [--repeats 3] [--mjx-timeout-5 600]
                                        [--mjx-timeout-10 2700] [--pybullet-processes 2]
 
 Heaps of 5 and 10 objects are drawn from the Dex-Net 4.0 distribution with a fixed object set per count (so
@@ -40,7 +40,7 @@ procedural objects (cached convex decompositions, prepared before timing) with t
 (Poisson(5) truncated to [3, 10]), the C engine only.
 
 ``ratio_rollout_over_mjx`` divides rollout heaps/s by the best MJX heaps/s at the same object count. The machine
-is shared and noisy: compare ratios, not absolute figures. ``--quick``: 5 objects only for MJX (batches 1 and
+is shared and noisy: compare ratios, not absolute figures. ``--no-mjx``: no MJX part. ``--quick``: 5 objects only for MJX (batches 1 and
 16); rollout and pybullet at both counts.
 
 Baseline install: ``pip install "pybullet>=3.2"`` (a manylinux wheel for CPython 3.11), or ``pip install
@@ -252,6 +252,7 @@ def main() -> None:
   ap.add_argument('--mjx-timeout-5', type=float, default=600.0)
   ap.add_argument('--mjx-timeout-10', type=float, default=2700.0)
   ap.add_argument('--pybullet-processes', type=int, default=os.cpu_count() or 1)
+  ap.add_argument('--no-mjx', action='store_true', help='skip the MJX part (its compiles take 5-45 minutes)')
   ap.add_argument('--mjx-child', type=int, default=None, help=argparse.SUPPRESS)
   ap.add_argument('--batches', default='1,16,64', help=argparse.SUPPRESS)
   args = ap.parse_args()
@@ -267,7 +268,7 @@ def main() -> None:
                    'pybullet': _version('pybullet')},
       'settings': {k: getattr(sim.SettleSettings(), k) for k in (
           'timestep', 'max_steps', 'linear_speed_tol', 'angular_speed_tol', 'impratio', 'rolling_friction',
-          'contact_timeconst')},
+          'contact_timeconst', 'sleep', 'sleep_tolerance', 'chunk_steps')},
       'pybullet_settings': {
           'mode': 'DIRECT', 'engine_defaults': pybullet_baseline.engine_parameters(),
           'time_step_s': pybullet_baseline.TIME_STEP, 'max_steps': pybullet_baseline.MAX_STEPS,
@@ -288,7 +289,7 @@ def main() -> None:
     report['ratio_rollout_over_pybullet'][str(count)] = ratio
   for level in (1, 2, 3):
     report['rollout_procedural'][f'L{level}'] = bench_procedural(level, args.rollout_heaps, args.repeats)
-  mjx_plan = {5: [1, 16]} if args.quick else {5: [1, 16, 64], 10: [1, 16, 64]}
+  mjx_plan = {} if args.no_mjx else {5: [1, 16]} if args.quick else {5: [1, 16, 64], 10: [1, 16, 64]}
   timeouts = {5: args.mjx_timeout_5, 10: args.mjx_timeout_10}
   # One child per object count, each pinned to its own core, run side by side after the rollout runs.
   children = {count: start_mjx(count, batches, core) for core, (count, batches) in enumerate(mjx_plan.items())}

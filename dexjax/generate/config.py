@@ -246,12 +246,23 @@ def load_generate_config(path: str | os.PathLike[str] | None = None, *,
   return config
 
 
+# Settling fields that change speed, not results, enter the fingerprint at fixed values (those datasets were made
+# with before they became speed-only), so changing them never changes it and older datasets keep theirs.
+_SPEED_ONLY = {'chunk_steps': 25, 'rollout_wave': 256}
+
+
 def fingerprint(config: GenerateConfig) -> str:
   """`dexjax.data.config_fingerprint` of everything that determines a shard's content (not the seed): the config,
-  the shard format and the labelling version (`dexjax.generate.labels.LABEL_VERSION`)."""
+  the shard format and the labelling version (`dexjax.generate.labels.LABEL_VERSION`). The settling threads,
+  chunks and waves are left out (`_SPEED_ONLY`); so are the sleep fields when ``settle.sleep`` is off, the physics
+  of datasets made before sleeping objects (2026-12-04), which therefore keep their fingerprint."""
   data = as_dict(config)
   data.pop('seed')
-  data['settle'].pop('nthread')  # threads change speed, not results
+  data['settle'].pop('nthread')
+  data['settle'].update(_SPEED_ONLY)
+  if not config.settle.sleep:  # the physics of every dataset made before the field existed: the same fingerprint
+    data['settle'].pop('sleep')
+    data['settle'].pop('sleep_tolerance')
   data['versions'] = {'shard_format': FORMAT_VERSION, 'labels': LABEL_VERSION}
   return config_fingerprint(plain_json(data))
 

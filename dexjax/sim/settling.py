@@ -11,7 +11,8 @@ Backends:
   meshes must not share an `MjData`: that silently produced NaN states), heaps spread over ``nthread`` Python
   threads (MuJoCo releases the GIL), ``chunk_steps`` steps per call, only unsettled heaps continued; the
   solver warm start is carried across calls, so chunking does not change the trajectory. Each heap is
-  simulated on its own, so the same states give bitwise the same result whatever the thread count.
+  simulated on its own, so the same states give bitwise the same result whatever the thread count. Objects at
+  rest sleep (``SettleSettings.sleep``).
 * ``'mjx'``: MuJoCo MJX, ``jax.jit(jax.vmap(...))`` over heaps that share one object set (see
   `dexjax.sim.mjx_backend`), run in a pinned child process on CPU.
 * ``'auto'``: ``'rollout'`` when ``jax.default_backend() == 'cpu'`` (the C engine is ~100x faster there),
@@ -33,7 +34,7 @@ from mujoco import rollout as mj_rollout
 
 from dexjax.sim.bodies import HeapObject
 from dexjax.sim.heap import HeapState, select_heap
-from dexjax.sim.scene import SettleSettings, build_heap_model, drop_poses, heap_slots, initial_qpos
+from dexjax.sim.scene import SettleSettings, build_heap_model, drop_poses, heap_slots
 
 BACKENDS = ('auto', 'rollout', 'mjx')
 _BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
@@ -87,11 +88,19 @@ class SettleTimeout(TimeoutError):
   """The MJX child process did not finish within ``SettleSettings.mjx_timeout`` seconds and was killed."""
 
 
+def _cross(a: Any, b: Any, xp: Any = np) -> Any:
+  """``xp.cross`` of (..., 3) vectors by components: the same products and differences (bitwise equal), without
+  NumPy's per-call axis handling, which dominated the settling loop's small arrays."""
+  a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+  b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+  return xp.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def rotate(quaternion: Any, vector: Any, xp: Any = np) -> Any:
   """Rotates vectors (..., 3) by unit quaternions (..., 4) (w, x, y, z); ``xp`` is `numpy` or `jax.numpy`."""
   w, r = quaternion[..., :1], quaternion[..., 1:]
-  t = 2.0 * xp.cross(r, vector)
-  return vector + w * t + xp.cross(r, t)
+  t = 2.0 * _cross(r, vector, xp)
+  return vector + w * t + _cross(r, t, xp)
 
 
 def object_speeds(qpos: Any, qvel: Any, centers_of_mass: Any, xp: Any = np) -> tuple[Any, Any]:
@@ -107,7 +116,7 @@ def object_speeds(qpos: Any, qvel: Any, centers_of_mass: Any, xp: Any = np) -> t
     (linear (..., m) m/s, angular (..., m) rad/s).
   """
   omega = qvel[..., 3:]
-  v_com = qvel[..., :3] + rotate(qpos[..., 3:], xp.cross(omega, centers_of_mass), xp)
+  v_com = qvel[..., :3] + rotate(qpos[..., 3:], _cross(omega, centers_of_mass, xp), xp)
   return xp.linalg.norm(v_com, axis=-1), xp.linalg.norm(omega, axis=-1)
 
 
@@ -143,13 +152,16 @@ def _check_ids(objects: Sequence[HeapObject], states: HeapState) -> None:
 
 
 def finish(objects: Sequence[HeapObject], states: HeapState, qpos: list[np.ndarray], qvel: list[np.ndarray],
-           steps: np.ndarray, diverged: np.ndarray, settings: SettleSettings, backend: str) -> SettleResult:
+           steps: np.ndarray, diverged: np.ndarray, settings: SettleSettings, backend: str,
+           drops: Sequence[np.ndarray] | None = None) -> SettleResult:
   """Pads per-heap final states into a `SettleResult` and computes the flags (shared by both backends).
 
   Args:
     objects, states: as given to `settle` (states batched, NumPy).
     qpos, qvel: per heap, (m_b, 7) and (m_b, 6) final free-joint states in `heap_slots` order.
     steps: (B,) steps simulated; diverged: (B,) bool.
+    settings, backend: as `settle` ran.
+    drops: per heap, the (P, 7) drop poses (`drop_poses` as position and quaternion) if already computed.
   """
   batch, pad = states.mask.shape
   poses = np.zeros((batch, pad, 7))
@@ -157,7 +169,6 @@ def finish(objects: Sequence[HeapObject], states: HeapState, qpos: list[np.ndarr
   centers = np.zeros((batch, pad, 3))
   velocities = np.zeros((batch, pad, 6))
   initial = np.zeros((batch, pad, 7))
-  initial[..., 3] = 1.0
   never = np.zeros((batch, pad), bool)
   diverged = np.asarray(diverged, bool).copy()
   hx, hy = 0.5 * settings.bin.inner_size[0], 0.5 * settings.bin.inner_size[1]
@@ -169,11 +180,10 @@ def finish(objects: Sequence[HeapObject], states: HeapState, qpos: list[np.ndarr
     quat = q[:, 3:] / np.maximum(np.linalg.norm(q[:, 3:], axis=1, keepdims=True), 1e-12)
     poses[b, slots] = np.concatenate([q[:, :3], quat], axis=1)
     centers[b, slots] = q[:, :3] + rotate(quat, coms)
-    velocities[b, slots, :3] = v[:, :3] + rotate(quat, np.cross(v[:, 3:], coms))
+    velocities[b, slots, :3] = v[:, :3] + rotate(quat, _cross(v[:, 3:], coms))
     velocities[b, slots, 3:] = rotate(quat, v[:, 3:])
     never[b, slots] = diverged[b] | ~resting(q, v, coms, settings)
-    positions, quats = drop_poses(objects, state, settings)
-    initial[b] = np.concatenate([positions, quats], axis=1)
+    initial[b] = _drop_vector(objects, state, settings) if drops is None else drops[b]
   mask = states.mask.astype(bool)
   left = mask & ((np.abs(centers[..., 0]) > hx) | (np.abs(centers[..., 1]) > hy) | (centers[..., 2] < 0.0)
                  | ~np.all(np.isfinite(centers), axis=-1))
@@ -184,6 +194,12 @@ def finish(objects: Sequence[HeapObject], states: HeapState, qpos: list[np.ndarr
                       diverged=diverged, backend=backend)
 
 
+def _drop_vector(objects: Sequence[HeapObject], state: HeapState, settings: SettleSettings) -> np.ndarray:
+  """(P, 7) `drop_poses` of one heap as position and quaternion per slot."""
+  positions, quats = drop_poses(objects, state, settings)
+  return np.concatenate([positions, quats], axis=1)
+
+
 class _RolloutHeap:
   """One heap on the C engine: its own model, `MjData`, state vector and warm start."""
 
@@ -191,8 +207,9 @@ class _RolloutHeap:
                start: np.ndarray | None = None):
     self.model = build_heap_model(objects, state, settings)
     self.data = mujoco.MjData(self.model)
+    self.drop = _drop_vector(objects, state, settings)
     if start is None:
-      self.data.qpos[:] = initial_qpos(objects, state, settings)
+      self.data.qpos[:] = self.drop[heap_slots(state)].reshape(-1)  # = initial_qpos
     else:
       self.data.qpos[:] = np.asarray(start, np.float64)[heap_slots(state)].reshape(-1)
     self.coms = _coms(objects, state)
@@ -232,7 +249,7 @@ def _settle_rollout(objects: Sequence[HeapObject], states: HeapState, settings: 
                     start_poses: np.ndarray | None = None) -> SettleResult:
   batch = states.mask.shape[0]
   nthread = settings.nthread or os.cpu_count() or 1
-  qpos, qvel, steps, diverged = [], [], [], []
+  qpos, qvel, steps, diverged, drops = [], [], [], [], []
   with ThreadPoolExecutor(max_workers=nthread) as pool:
     for start in range(0, batch, settings.rollout_wave):
       wave = range(start, min(start + settings.rollout_wave, batch))
@@ -252,7 +269,8 @@ def _settle_rollout(objects: Sequence[HeapObject], states: HeapState, settings: 
         qvel.append(v)
         steps.append(h.steps)
         diverged.append(h.diverged)
-  return finish(objects, states, qpos, qvel, np.array(steps), np.array(diverged), settings, 'rollout')
+        drops.append(h.drop)
+  return finish(objects, states, qpos, qvel, np.array(steps), np.array(diverged), settings, 'rollout', drops)
 
 
 def _start_poses(states: HeapState, start_poses: Any) -> np.ndarray:
@@ -317,5 +335,6 @@ def settle(objects: Sequence[HeapObject], states: HeapState, *, backend: str = '
     return result if start_poses is None else result.replace(initial_poses=np.where(
         states.mask[..., None], start_poses, result.initial_poses))
   from dexjax.sim import mjx_backend  # imports mujoco.mjx only when needed
+  settings = settings.replace(sleep=False)  # MJX does not put bodies to sleep: say so in the settings it ran
   raw = mjx_backend.run(objects, states, settings)
   return finish(objects, states, raw['qpos'], raw['qvel'], raw['steps'], raw['diverged'], settings, 'mjx')
