@@ -338,6 +338,7 @@ def test_intrinsics_round_trip(tmp_path):
                  cy=jnp.float32(258.75), width=500, height=480)
   save_intrinsics(path, k)
   assert json.loads(path.read_text())['width'] == 500
+  assert '"fx": 575.123,' in path.read_text()  # the float32's shortest decimal, not 575.1229858398438
   loaded = load_intrinsics(path)
   assert (loaded.width, loaded.height) == (500, 480)
   for field in ('fx', 'fy', 'cx', 'cy'):
@@ -365,6 +366,9 @@ def test_camera_round_trip(tmp_path):
   camera = sample_camera(jax.random.key(9))
   save_camera(tmp_path / 'posed.json', camera)
   loaded = load_camera(tmp_path / 'posed.json')
+  written = json.loads((tmp_path / 'posed.json').read_text())
+  digits = lambda v: len(repr(abs(v)).split('e')[0].replace('.', '').lstrip('0'))
+  assert max(digits(v) for v in written['position'] + sum(written['rotation'], [])) <= 9  # float32's, not 17
   np.testing.assert_array_equal(loaded.rotation, camera.rotation)
   np.testing.assert_array_equal(loaded.position, camera.position)
   assert loaded.intrinsics.fx == camera.intrinsics.fx and loaded.intrinsics.width == 500

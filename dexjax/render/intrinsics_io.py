@@ -174,10 +174,19 @@ def _intrinsics_from_mapping(name: str, data: dict[str, Any]) -> Intrinsics:
                    'with K, width, height)')
 
 
+def _decimal(value: Any) -> Any:
+  """``value`` (a scalar or array) as Python floats, each the shortest decimal that reads back to the same number
+  in its own precision: a float32 575.8 is written 575.8, not 575.7999877929688."""
+  array = np.asarray(value)
+  if array.dtype == np.float32:
+    return np.vectorize(lambda v: float(str(np.float32(v))), otypes=[float])(array).tolist()
+  return np.asarray(array, np.float64).tolist()
+
+
 def _intrinsics_dict(name: str, intrinsics: Intrinsics) -> dict[str, Any]:
   """Our JSON fields of ``intrinsics``, checked as `load_intrinsics` would check them."""
   try:
-    data = {f: float(np.asarray(getattr(intrinsics, f))) for f in ('fx', 'fy', 'cx', 'cy')}
+    data = {f: float(_decimal(getattr(intrinsics, f))) for f in ('fx', 'fy', 'cx', 'cy')}
   except TypeError:
     raise ValueError(f'{name}: fx: expected scalar intrinsics (one camera, not a batch), '
                      f'got fx of shape {np.shape(intrinsics.fx)}') from None
@@ -237,8 +246,10 @@ def save_camera(path: str | os.PathLike, camera: Camera) -> None:
   world-from-camera) and ``position`` (3, metres). The rotation is checked as `load_camera` checks it."""
   name = os.fspath(path)
   data = _intrinsics_dict(name, camera.intrinsics)
-  data['rotation'] = _rotation(name, np.asarray(camera.rotation, np.float64).tolist()).tolist()
-  data['position'] = _position(name, np.asarray(camera.position, np.float64).tolist()).tolist()
+  _rotation(name, np.asarray(camera.rotation, np.float64).tolist())  # checked as load_camera checks it
+  _position(name, np.asarray(camera.position, np.float64).tolist())
+  data['rotation'] = _decimal(camera.rotation)
+  data['position'] = _decimal(camera.position)
   _write_json(path, data)
 
 
