@@ -56,7 +56,10 @@ class Rejection:
   """A file that was not loaded.
 
   Attributes:
-    file: the file's path relative to the folder, POSIX separators, e.g. ``'broken.stl'``.
+    file: what was not loaded. From `load_mesh_folder`: the file's path relative to the folder, POSIX
+      separators, e.g. ``'broken.stl'``; from `dexjax.objects.load_object_set`, which merges several sources: the
+      source spec itself, or a folder's file joined to the folder as given (``'my_objects/broken.stl'``), or the
+      object's path, so that every entry names its file unambiguously.
     reason: what is wrong, in words, e.g. ``'empty file (0 bytes); expected a triangle mesh'``.
   """
   file: str
