@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from dexjax.render.camera import Camera, Intrinsics, deproject, look_at, project
 from dexjax.render.distribution import (CameraDistribution, _sample_pose_and_intrinsics, camera_from_spherical,
-                                        sample_camera)
+                                        sample_camera, spherical_from_camera)
 from dexjax.render.intrinsics_io import load_camera, load_intrinsics, save_camera, save_intrinsics
 from dexjax.render.noise import (SensorNoise, _interpolation_matrix, apply_sensor_noise, dropout,
                                  gamma_depth_noise, gaussian_process_noise)
@@ -167,6 +167,27 @@ def test_sampled_cameras_lie_in_and_cover_the_seed_ranges(sampled):
     assert stats.kstest((values - low) / width, 'uniform').pvalue > 1e-3, name
   assert np.corrcoef(np.asarray(k.cx), np.asarray(k.cy))[0, 1] < 0.1  # drawn independently
   assert np.asarray(cameras.position)[:, 2].min() > 0.7 * math.cos(math.radians(10.0)) - 1e-5  # above the bin
+
+
+def test_spherical_from_camera_inverts_camera_from_spherical(sampled):
+  cameras, (center, r, theta, phi, *_) = sampled
+  got = jax.jit(jax.vmap(spherical_from_camera))(cameras)
+  reference = _recover(cameras)  # NumPy, float64
+  np.testing.assert_allclose(got[0], center, atol=2e-5)
+  np.testing.assert_allclose(got[1], r, atol=2e-5)
+  np.testing.assert_allclose(np.degrees(got[2]), reference[2], atol=2e-2)
+  np.testing.assert_allclose(np.degrees(got[3]), reference[3], atol=2e-2)
+  np.testing.assert_allclose(got[2], theta, atol=4e-4)  # the sampled angles (float32 pose, float32 recovery)
+  np.testing.assert_allclose(got[3], phi, atol=4e-4)
+  # A floor 0.1 m higher: the same axis meets it 0.1 / cos(phi) sooner.
+  higher = jax.vmap(spherical_from_camera, in_axes=(0, None))(cameras, 0.1)
+  np.testing.assert_allclose(higher[1], np.asarray(r) - 0.1 / np.cos(np.asarray(phi)), atol=2e-5)
+  first = jax.tree.map(lambda x: x[0], cameras)
+  looking_up = first.replace(rotation=first.rotation * jnp.array([1.0, -1.0, -1.0]))  # y and z axes flipped
+  below = first.replace(position=jnp.array([0.0, 0.0, -0.5]))
+  assert not np.any(np.isnan(np.concatenate([np.ravel(v) for v in spherical_from_camera(first)])))
+  for camera in (looking_up, below):
+    assert all(np.all(np.isnan(v)) for v in spherical_from_camera(camera))
 
 
 def test_optical_axis_passes_through_the_sampled_center(sampled):

@@ -9,7 +9,7 @@ noise (`apply_sensor_noise`) is optional and off by default. See ``docs/cameras.
 
 from dexjax.render.camera import (Camera, Intrinsics, camera_to_world, deproject, look_at, pixel_rays, project,
                                   world_to_camera)
-from dexjax.render.distribution import CameraDistribution, camera_from_spherical, sample_camera
+from dexjax.render.distribution import CameraDistribution, camera_from_spherical, sample_camera, spherical_from_camera
 from dexjax.render.intrinsics_io import (ROTATION_TOLERANCE, check_camera_view, load_camera,
                                          load_camera_or_intrinsics, load_intrinsics, save_camera, save_intrinsics)
 from dexjax.render.noise import (SensorNoise, apply_sensor_noise, dropout, noisy_depth, gamma_depth_noise,
@@ -20,7 +20,7 @@ from dexjax.render.rendering import (BACKENDS, BIN_LABEL, INVALID_LABEL, TABLE_H
 
 __all__ = [
     "Camera", "Intrinsics", "camera_to_world", "deproject", "look_at", "pixel_rays", "project", "world_to_camera",
-    "CameraDistribution", "camera_from_spherical", "sample_camera", "ROTATION_TOLERANCE", "check_camera_view", "load_camera", "load_camera_or_intrinsics",
+    "CameraDistribution", "camera_from_spherical", "sample_camera", "spherical_from_camera", "ROTATION_TOLERANCE", "check_camera_view", "load_camera", "load_camera_or_intrinsics",
     "load_intrinsics", "save_camera", "save_intrinsics", "SensorNoise", "apply_sensor_noise", "noisy_depth", "dropout",
     "gamma_depth_noise", "gaussian_process_noise", "BACKENDS", "BIN_LABEL", "INVALID_LABEL", "TABLE_HALF_SIZE",
     "render_boxes", "DepthImage", "DepthRenderer", "RenderScene", "RenderSettings", "build_render_scene", "empty_bin_scene", "render_depth",

@@ -145,6 +145,34 @@ def camera_from_spherical(center: jax.Array, r: jax.Array | float, theta: jax.Ar
   return Camera(intrinsics=intrinsics, rotation=look_at(position, center, up), position=position)
 
 
+def spherical_from_camera(camera: Camera, floor_height: float | jax.Array = 0.0
+                          ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+  """The spherical pose of a camera about where its optical axis meets the floor: `camera_from_spherical`'s
+  inverse, for any posed camera (a sampled one, or the user's own, to compare with a `CameraDistribution`).
+
+  Args:
+    camera: one `Camera` (world-from-camera rotation; its third column is the optical axis).
+    floor_height: world z of the floor plane the axis is intersected with, metres (the bin floor: 0).
+
+  Returns:
+    (center (3,) the axis's floor point, metres; r () the distance from it to the camera, metres; theta () the
+    camera's azimuth about world +z from +x towards +y, radians in [0, 2 pi); phi () its polar angle from world
+    +z, radians: the camera's tilt from straight down). All NaN when the axis does not point down to the floor
+    (or the camera is below it).
+  """
+  position = jnp.asarray(camera.position, jnp.float32)
+  axis = jnp.asarray(camera.rotation, jnp.float32)[:, 2]
+  height = position[2] - floor_height
+  valid = (axis[2] < 0.0) & (height > 0.0)
+  r = jnp.where(valid, height / jnp.where(valid, -axis[2], 1.0), jnp.nan)
+  center = position + r * axis
+  offset = position - center
+  theta = jnp.mod(jnp.arctan2(offset[1], offset[0]), 2.0 * jnp.pi)
+  phi = jnp.arccos(jnp.clip(-axis[2], -1.0, 1.0))
+  nan = jnp.float32(jnp.nan)
+  return center, r, jnp.where(valid, theta, nan), jnp.where(valid, phi, nan)
+
+
 def _sample_pose_and_intrinsics(key: jax.Array, dist: CameraDistribution) -> tuple[jax.Array, ...]:
   """Draws (center (3,) m, r m, theta rad, phi rad, f px, cx px, cy px), each uniform in its range."""
   low = jnp.array([getattr(dist, name)[0] for name, _, _ in _RANGES], jnp.float32)
