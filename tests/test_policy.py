@@ -18,7 +18,7 @@ from flax import struct
 
 from dexjax.models import GQCNNConfig, GraspQualityModel, Normalization, init_gqcnn
 from dexjax.policy.candidates import grasp_features, grasps_from_features, sample_candidates
-from dexjax.policy.cem import CEMParams, CEMPolicy, cem_policy
+from dexjax.policy.cem import CEMParams, CEMPolicy
 from dexjax.policy.composite import GreedyComposite, RandomComposite, plan_grasp
 from dexjax.policy.observation import observation
 from dexjax.policy.ranking import RandomPolicy, RankingPolicy

@@ -23,7 +23,7 @@ from dexjax.policy.observation import observation
 from dexjax.policy.polish import PolishParams, moved_grasps, polish_grasps
 from dexjax.policy.scorers import PARALLEL_JAW, SUCTION, GQCNNScorer
 from dexjax.render.camera import Camera, Intrinsics, look_at
-from dexjax.sampling.image_grasps import ImageParallelJawGrasp, ImageSuctionGrasp
+from dexjax.sampling.image_grasps import ImageParallelJawGrasp
 from dexjax.sampling.image_samplers import AntipodalImageSampler, SuctionImageSampler, surface_normals
 
 N = 200

@@ -5,7 +5,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-import trimesh
 
 from dexjax.geometry.sdf import first_crossing, ray_cast, sdf_value, surface_normal
 from dexjax.objects import builtin_mesh

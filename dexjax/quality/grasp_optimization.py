@@ -36,7 +36,7 @@ from flax import struct
 
 from dexjax.contacts.suction import approach_contact
 from dexjax.geometry.object_model import ObjectModel
-from dexjax.geometry.transforms import normalize, so3_exp
+from dexjax.geometry.transforms import so3_exp
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.grasp_quality import QualityConfig
