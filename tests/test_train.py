@@ -148,6 +148,8 @@ def test_bootstrap_resamples_whole_groups():
   assert 2.5 < ratio < 4.0
   assert bootstrap_intervals(scores, np.zeros(n), np.arange(n))['average_precision'] is None  # no positives
   assert bootstrap_intervals(scores, labels, np.zeros(n))['balanced_accuracy'] is None  # one group
+  empty = bootstrap_intervals(np.zeros(0), np.zeros(0), np.zeros(0))
+  assert empty['groups'] == 0 and empty['balanced_accuracy'] is None and empty['average_precision'] is None
   with pytest.raises(ValueError, match='0 < level < 1'):
     bootstrap_intervals(scores, labels, np.arange(n), level=95)
   with pytest.raises(ValueError, match='one shape'):

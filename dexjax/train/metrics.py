@@ -106,8 +106,12 @@ def bootstrap_intervals(scores: np.ndarray, labels: np.ndarray, groups: np.ndarr
                      f'{np.shape(scores)}, {np.shape(labels)}, {groups.shape}')
   _, group_index = np.unique(groups, return_inverse=True)
   num_groups = int(group_index.max()) + 1 if len(group_index) else 0
+  result = {'groups': num_groups, 'resamples': num_resamples, 'level': level, 'balanced_accuracy': None,
+            'average_precision': None}
+  if num_groups < 2:  # nothing to resample (no rows, or one group)
+    return result
   rng = np.random.default_rng(seed)
-  picks = rng.integers(0, max(num_groups, 1), size=(num_resamples, num_groups))
+  picks = rng.integers(0, num_groups, size=(num_resamples, num_groups))
   counts = np.zeros((num_resamples, num_groups), np.int64)
   np.add.at(counts, (np.arange(num_resamples)[:, None], picks), 1)
   balanced, ap = _resampled_metrics(scores, labels, group_index.reshape(-1), counts, threshold)
@@ -115,12 +119,11 @@ def bootstrap_intervals(scores: np.ndarray, labels: np.ndarray, groups: np.ndarr
 
   def interval(values: np.ndarray) -> list[float] | None:
     values = values[np.isfinite(values)]
-    if num_groups < 2 or len(values) < num_resamples / 2:
+    if len(values) < num_resamples / 2:
       return None
     return [float(v) for v in np.percentile(values, [tail, 100.0 - tail])]
 
-  return {'groups': num_groups, 'resamples': num_resamples, 'level': level,
-          'balanced_accuracy': interval(balanced), 'average_precision': interval(ap)}
+  return {**result, 'balanced_accuracy': interval(balanced), 'average_precision': interval(ap)}
 
 
 __all__ = ['average_precision', 'bootstrap_intervals', 'classification_metrics']
