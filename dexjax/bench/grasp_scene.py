@@ -76,8 +76,10 @@ class GraspScene:
                geometry: GripperGeometry):
     self.settings, self.suction = settings, isinstance(grasp, SuctionGrasp)
     self.contact_point, self.contact_offset = None, np.zeros(3)  # suction: the sealed contact (world, hand frame)
+    # No sleeping objects here: the tool moves through mocap and weld constraints, and the judge's physics was
+    # validated with every object awake (settling alone lets resting objects sleep).
     spec = heap_spec(objects, heap, SettleSettings(timestep=settings.timestep, impratio=settings.impratio,
-                                                   solver_iterations=settings.solver_iterations))
+                                                   solver_iterations=settings.solver_iterations, sleep=False))
     opt = spec.option
     opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     opt.noslip_iterations = settings.noslip_iterations
