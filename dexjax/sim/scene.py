@@ -165,7 +165,7 @@ def drop_poses(objects: Sequence[HeapObject], state: HeapState, settings: Settle
   ids, com_drop = np.asarray(state.object_ids), np.asarray(state.positions, np.float64)
   slots = np.flatnonzero(np.asarray(state.mask, bool))
   q_all = np.array([q / np.linalg.norm(q) for q in np.asarray(state.quaternions, np.float64)[slots]]).reshape(-1, 4)
-  rotations = quat_to_matrix(q_all) if len(slots) else np.zeros((0, 3, 3))  # one call for the heap
+  rotations = quat_to_matrix(q_all)  # one call for the heap
   gap = settings.drop_gap
   for slot, q, rot in zip(slots, q_all, rotations):
     obj = objects[int(ids[slot])]

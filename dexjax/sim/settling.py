@@ -208,10 +208,8 @@ class _RolloutHeap:
     self.model = build_heap_model(objects, state, settings)
     self.data = mujoco.MjData(self.model)
     self.drop = _drop_vector(objects, state, settings)
-    if start is None:
-      self.data.qpos[:] = self.drop[heap_slots(state)].reshape(-1)  # = initial_qpos
-    else:
-      self.data.qpos[:] = np.asarray(start, np.float64)[heap_slots(state)].reshape(-1)
+    poses = self.drop if start is None else np.asarray(start, np.float64)  # (P, 7) in slot order
+    self.data.qpos[:] = poses[heap_slots(state)].reshape(-1)
     self.coms = _coms(objects, state)
     self.spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     self.state = np.empty(mujoco.mj_stateSize(self.model, self.spec))
