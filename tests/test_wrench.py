@@ -376,3 +376,21 @@ def test_plain_jit_vmap_identical(decision_sets):
   for i in (1000, 1999):  # Plain calls of the wrappers too (the lifting runs op by op).
     np.testing.assert_array_equal(wrench.wrench_residual(g[i], t[i], groups[i], limits[i]), res_batched[i])
     assert bool(wrench.resists(g[i], t[i], groups[i], limits[i])) == (res_batched[i] <= TOL)
+
+
+def test_vmap_pools_the_problems_and_equals_the_fixed_loop(decision_sets):
+  """Under `vmap` the solver runs the batch through `pooled_loop` (each problem stops when converged); run one
+  problem after another with `lax.map` (no batching rule) it runs the fixed loop. Both give the same bits, for
+  nested `vmap` and for an argument shared by the batch too."""
+  g, t, groups, limits, _ = (v.astype(np.float32) for v in decision_sets["suction"])
+  sel = np.concatenate([np.arange(1000), np.arange(3500, 4500)])  # Random and near-boundary problems.
+  a, b = (np.asarray(v) for v in jax.vmap(wrench.lift_bounded_groups)(g[sel], t[sel], groups[sel], limits[sel]))
+  pooled = _nnls_batch(a, b)
+  fixed = jax.jit(lambda a, b: jax.lax.map(lambda ab: wrench.nnls(*ab), (a, b)))(a, b)
+  for field in ("x", "residual", "converged"):
+    np.testing.assert_array_equal(getattr(pooled, field), getattr(fixed, field))
+  assert np.mean(fixed.converged) > 0.99
+  nested = jax.jit(jax.vmap(jax.vmap(wrench.nnls)))(a.reshape(200, 10, *a.shape[1:]), b.reshape(200, 10, -1))
+  np.testing.assert_array_equal(nested.residual.reshape(-1), pooled.residual)
+  shared_b = jax.jit(jax.vmap(wrench.nnls, in_axes=(0, None)))(a[:50], b[7])
+  np.testing.assert_array_equal(shared_b.residual, [wrench.nnls(a[i], b[7]).residual for i in range(50)])

@@ -44,6 +44,11 @@ shapes, so it runs plain, under `jax.jit` and under `jax.vmap` (batch it with `j
   QR with reorthogonalisation, which is backward stable where the normal equations lose accuracy in
   float32 (a passive matrix with condition number >~ 1e3, e.g. a square, nearly singular exact fit). That
   solution is taken if it is strictly positive and has the smaller residual.
+* Under `jax.vmap` the fixed loop is not run problem by problem for its whole trip count: a custom batching
+  rule (`jax.custom_batching.custom_vmap`) hands the whole batch, however deeply nested the `vmap`, to
+  `dexjax.quality.pooled_loop`, which stops each problem once it has converged and gives its lane to the next
+  one (problems need 10 of the 32 iterations on average). A converged state is a fixed point of the
+  iteration, so the results are the fixed loop's; the solver alone runs about 1.3x faster.
 * Plain, `jit` and `vmap` calls give bitwise identical results: every sum is added in a fixed order and
   no product is contracted into a fused multiply-add (see `_mul`), so the rounding does not depend on how
   XLA vectorises the code.
@@ -63,11 +68,14 @@ nearby). ``x`` itself carries no gradient.
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 from flax import struct
+from jax.custom_batching import custom_vmap
+
+from dexjax.quality.pooled_loop import pooled_loop
 
 # Loop iterations per row of A (static trip count = ITERATIONS_PER_ROW * m, 32 for the 8-row lifted
 # parallel-jaw problem). Every iteration adds one column or drops at least one; on 10,000 lifted 8 x 22
@@ -403,14 +411,9 @@ def nnls(
   return _nnls_compiled(a, b, jnp.float32(tol), num_iterations)
 
 
-@functools.partial(jax.jit, static_argnums=3)
-def _nnls_compiled(a: jax.Array, b: jax.Array, tol: jax.Array, num_iterations: int) -> NNLSResult:
-  """`nnls` on float32 arrays of checked shapes."""
-  m, n = a.shape
-  # The minimiser is not differentiated; the residual is (see the module docstring).
-  a_const, b_const = jax.lax.stop_gradient(a), jax.lax.stop_gradient(b)
-  dual_tol = tol * _sqrt(jnp.max(_sum(_mul(a_const, a_const), axis=0))) * _norm(b_const)
-  state = _State(
+def _initial_state(m: int, n: int) -> _State:
+  """The empty passive set of an (m, n) problem."""
+  return _State(
       slot_x=jnp.zeros((m,), jnp.float32),
       slot_col=jnp.zeros((m,), jnp.int32),
       used=jnp.zeros((m,), bool),
@@ -420,15 +423,72 @@ def _nnls_compiled(a: jax.Array, b: jax.Array, tol: jax.Array, num_iterations: i
       banned=jnp.zeros((n,), bool),
       done=jnp.zeros((), bool),
   )
-  a_t = a_const.T
-  state = jax.lax.fori_loop(
-      0, num_iterations, lambda _, s: _step(a_const, a_t, b_const, dual_tol, s), state)
 
-  x = _scatter(state.slot_col, state.used, state.slot_x, n)
+
+def _final_fields(state: _State) -> tuple[jax.Array, ...]:
+  """What the solution needs of a final `_State`: (slot_x, slot_col, used, a_slots, done)."""
+  return state.slot_x, state.slot_col, state.used, state.a_slots, state.done
+
+
+def _broadcast_batched(axis_size: int, in_batched: list[bool], args: tuple) -> tuple:
+  """The arguments of a `custom_vmap` rule, each with the batch axis in front (unbatched ones broadcast)."""
+  return tuple(x if batched else jnp.broadcast_to(x, (axis_size,) + x.shape) for x, batched in zip(args, in_batched))
+
+
+@functools.lru_cache(maxsize=None)
+def _lawson_hanson(num_iterations: int) -> Callable[[jax.Array, jax.Array, jax.Array], tuple[jax.Array, ...]]:
+  """The Lawson--Hanson iteration of one problem, ``(a (m, n), b (m,), dual_tol ()) -> `_final_fields```, for a
+  static trip count.
+
+  Called plainly it is the fixed loop of ``num_iterations`` `_step` calls. Under `jax.vmap` (at any depth of
+  nesting) the problems of the whole batch go through `pooled_loop` instead: each stops when it has converged
+  (a converged state is a fixed point of `_step`, so the spare iterations of the fixed loop change nothing)
+  and its lane takes the next problem. The results are the fixed loop's, bit for bit.
+  """
+
+  def one(a, b, dual_tol):
+    m, n = a.shape
+    a_t = a.T
+    state = jax.lax.fori_loop(0, num_iterations, lambda _, s: _step(a, a_t, b, dual_tol, s), _initial_state(m, n))
+    return _final_fields(state)
+
+  def many(a, b, dual_tol):  # a (B, m, n), b (B, m), dual_tol (B,)
+    m, n = a.shape[1:]
+    step = lambda item, s: _step(item[0], item[1], item[2], item[3], s)
+    return pooled_loop(step, _initial_state(m, n), (a, jnp.swapaxes(a, 1, 2), b, dual_tol), num_iterations,
+                       lambda s: s.done, keep=_final_fields)
+
+  many = custom_vmap(many)
+  one = custom_vmap(one)
+
+  @many.def_vmap
+  def _many_batched(axis_size, in_batched, a, b, dual_tol):  # one more batch axis in front: flatten it
+    a, b, dual_tol = _broadcast_batched(axis_size, in_batched, (a, b, dual_tol))
+    out = many(*(x.reshape((-1,) + x.shape[2:]) for x in (a, b, dual_tol)))
+    return jax.tree.map(lambda x: x.reshape((axis_size, -1) + x.shape[1:]), out), jax.tree.map(lambda _: True, out)
+
+  @one.def_vmap
+  def _one_batched(axis_size, in_batched, a, b, dual_tol):
+    out = many(*_broadcast_batched(axis_size, in_batched, (a, b, dual_tol)))
+    return out, jax.tree.map(lambda _: True, out)
+
+  return one
+
+
+@functools.partial(jax.jit, static_argnums=3)
+def _nnls_compiled(a: jax.Array, b: jax.Array, tol: jax.Array, num_iterations: int) -> NNLSResult:
+  """`nnls` on float32 arrays of checked shapes."""
+  m, n = a.shape
+  # The minimiser is not differentiated; the residual is (see the module docstring).
+  a_const, b_const = jax.lax.stop_gradient(a), jax.lax.stop_gradient(b)
+  dual_tol = tol * _sqrt(jnp.max(_sum(_mul(a_const, a_const), axis=0))) * _norm(b_const)
+  slot_x, slot_col, used, a_slots, done = _lawson_hanson(num_iterations)(a_const, b_const, dual_tol)
+
+  x = _scatter(slot_col, used, slot_x, n)
   # Polish: re-solve on the final passive set with QR; keep it if strictly positive and better.
-  z_qr = _qr_least_squares(state.a_slots, state.used, b_const)
-  x_qr = _scatter(state.slot_col, state.used, z_qr, n)
-  better = (jnp.all(jnp.where(state.used, z_qr > 0, True))
+  z_qr = _qr_least_squares(a_slots, used, b_const)
+  x_qr = _scatter(slot_col, used, z_qr, n)
+  better = (jnp.all(jnp.where(used, z_qr > 0, True))
             & (_norm(b_const - _matvec(a_const, x_qr)) < _norm(b_const - _matvec(a_const, x))))
   x = jnp.where(better, x_qr, x)
   residual = _safe_norm(b - _matvec(a, x))
@@ -436,7 +496,7 @@ def _nnls_compiled(a: jax.Array, b: jax.Array, tol: jax.Array, num_iterations: i
   # optimum is 0 in a neighbourhood: no gradient there (the value is unchanged).
   floor = _GRADIENT_FLOOR * _norm(b_const)
   residual = jnp.where(residual > floor, residual, jax.lax.stop_gradient(residual))
-  return NNLSResult(x=x, residual=residual, converged=state.done)
+  return NNLSResult(x=x, residual=residual, converged=done)
 
 
 def lift_bounded_groups(
