@@ -93,18 +93,28 @@ def _regula_falsi(f, ta, tb, fa, fb, num_iterations: int):
   return _false_position(*jax.lax.fori_loop(0, num_iterations, body, (ta, tb, fa, fb)))
 
 
+@jax.custom_jvp
 def _implicit_root(model: ObjectModel, start: jax.Array, direction: jax.Array, t: jax.Array) -> jax.Array:
   """``t``, where the line ``start + t direction`` crosses the surface (found by any search), with the gradient
   of the implicit function theorem on the surface's tangent plane there: the value is ``t`` exactly (the
   search is not differentiated) and dt = -g . d(start + t direction) / (g . direction), g the interpolated
   `sdf_gradient` at the crossing (continuous across cells, unlike the derivative of the trilinear distance).
-  A grazing line (|g . direction| < 1e-6) gets no gradient instead of an infinite one."""
+  A grazing line (|g . direction| < 1e-6) gets no gradient instead of an infinite one.
+
+  A custom JVP, so that a pass without derivatives (labelling) does not look up the gradient at all."""
+  del model, start, direction
+  return jax.lax.stop_gradient(t)
+
+
+@_implicit_root.defjvp
+def _implicit_root_jvp(primals, tangents):
+  model, start, direction, t = primals
+  _, d_start, d_direction, _ = tangents
   t = jax.lax.stop_gradient(t)
   g = jax.lax.stop_gradient(sdf_gradient(model, start + t * direction))
-  height = jnp.dot(g, start + t * direction)
   slope = jax.lax.stop_gradient(jnp.dot(g, direction))
   safe = jnp.where(jnp.abs(slope) > 1e-6, slope, jnp.inf)
-  return t - (height - jax.lax.stop_gradient(height)) / safe
+  return t, -jnp.dot(g, d_start + t * d_direction) / safe
 
 
 def first_crossing(model: ObjectModel, start: jax.Array, direction: jax.Array, length: float | jax.Array,
