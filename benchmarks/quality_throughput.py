@@ -33,14 +33,21 @@ Python loop, and dexjax's ``jax.jit(jax.vmap(nnls))`` on the lifted float32 syst
 largest residual difference. This isolates the solver from the contact work. The self-check that the lifted
 NNLS equals the cvxopt QP is ``solver_only.<gripper>.max_abs_residual_diff_cvxopt_tight_vs_nnls``.
 
+``two_cpu_devices`` (skip with ``--no-devices``): the same dexjax function on the same batches, split over two
+CPU devices (a child process started with ``XLA_FLAGS=--xla_force_host_platform_device_count=2``, the batch
+split by ``jax.shard_map`` as `dexjax.quality.evaluate_grasps` does with several devices): grasps/s at batch
+1,000 and 10,000 (median of ``--repeats``), and whether the probabilities equal the one-device run's bit for bit.
+
 The machine is shared and noisy: compare ratios measured in the same run, not absolute figures.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
+import subprocess
 import sys
 import time
 
@@ -48,6 +55,7 @@ import cvxopt
 import jax
 import numpy as np
 import scipy
+from jax.sharding import Mesh, PartitionSpec
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -137,18 +145,70 @@ def solver_only(problems, repeats: int, batch: int, tol: float) -> dict:
   return out
 
 
+def _setups():
+  return {
+      "parallel_jaw": (ParallelJawGripper(), parallel_jaw_perturbations(10), robust_parallel_jaw_quality,
+                       sample_antipodal_grasps),
+      "suction": (SuctionGripper(), suction_perturbations(10), robust_suction_quality, sample_suction_grasps),
+  }
+
+
+def _dexjax_inputs(model, gripper, sampler):
+  """The benchmark's batches of 1,000 and 10,000 grasps: (keys, grasps) per size."""
+  grasps, valid = jax.jit(sampler, static_argnums=2)(jax.random.key(0), model, 4096, gripper)
+  return {n: (jax.random.split(jax.random.key(n), n), _tile(grasps, valid, n)) for n in (1000, 10000)}
+
+
+def _digest(probabilities) -> str:
+  return hashlib.sha256(np.asarray(probabilities, np.float32).tobytes()).hexdigest()[:16]
+
+
+def devices_child(object_name: str, repeats: int) -> None:
+  """Child process with several CPU devices: grasps/s of the batch split over them, and result digests."""
+  model, cfg = load_object_model(object_name), QualityConfig()
+  mesh = Mesh(np.asarray(jax.local_devices()), ("grasps",))
+  out = {"devices": mesh.size}
+  for name, (gripper, pert, robust, sampler) in _setups().items():
+    per = jax.vmap(lambda k, g: robust(k, model, g, gripper, pert, cfg).probability)
+    fn = jax.jit(jax.shard_map(per, mesh=mesh, in_specs=(PartitionSpec("grasps"),) * 2,
+                               out_specs=PartitionSpec("grasps"), check_vma=False))
+    entry = {}
+    for n, inp in _dexjax_inputs(model, gripper, sampler).items():
+      entry[f"digest_{n}"] = _digest(jax.block_until_ready(fn(*inp)))
+      rates = []
+      for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn(*inp))
+        rates.append(n / (time.perf_counter() - t))
+      entry[f"batch_{n}_grasps_per_s"] = round(float(np.median(rates)), 1)
+    out[name] = entry
+  print(json.dumps(out))
+
+
+def _run_devices_child(object_name: str, repeats: int, devices: int = 2) -> dict:
+  env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}", JAX_PLATFORMS="cpu")
+  cmd = [sys.executable, os.path.abspath(__file__), "--devices-child", "--object", object_name,
+         "--repeats", str(repeats)]
+  done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
+  return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
   ap = argparse.ArgumentParser()
   ap.add_argument("--object", default="builtin:box")
   ap.add_argument("--baseline-grasps", type=int, default=50)
   ap.add_argument("--repeats", type=int, default=3)
   ap.add_argument("--solver-batch", type=int, default=10000)
+  ap.add_argument("--no-devices", action="store_true", help="skip the two-CPU-device measurement")
+  ap.add_argument("--devices-child", action="store_true", help=argparse.SUPPRESS)
   args = ap.parse_args()
+  if args.devices_child:
+    devices_child(args.object, args.repeats)
+    return
 
   model = load_object_model(args.object)
   obj = baseline.NumpyObject(model)
   cfg = QualityConfig()
-  key = jax.random.key(0)
   result = {"object": args.object, "num_samples": 10, "baseline_grasps": args.baseline_grasps,
             "repeats": args.repeats, "machine": describe(), "cvxopt": cvxopt.__version__,
             "scipy": scipy.__version__,
@@ -156,17 +216,12 @@ def main() -> None:
                 "cvxopt": "per grasp and sample: NumPy contacts + cvxopt QP, cvxopt default tolerances, progress "
                           "silenced (Dex-Net's settings)",
                 "nnls": "per grasp and sample: NumPy contacts + the lifted NNLS by scipy.optimize.nnls"}}
-  setups = {
-      "parallel_jaw": (ParallelJawGripper(), parallel_jaw_perturbations(10), robust_parallel_jaw_quality,
-                       sample_antipodal_grasps),
-      "suction": (SuctionGripper(), suction_perturbations(10), robust_suction_quality, sample_suction_grasps),
-  }
-  for name, (gripper, pert, robust, sampler) in setups.items():
-    grasps, valid = jax.jit(sampler, static_argnums=2)(key, model, 4096, gripper)
+  digests = {}
+  for name, (gripper, pert, robust, sampler) in _setups().items():
     fn = jax.jit(jax.vmap(lambda k, g: robust(k, model, g, gripper, pert, cfg).probability))
-    inputs = {n: (jax.random.split(jax.random.key(n), n), _tile(grasps, valid, n)) for n in (1000, 10000)}
+    inputs = _dexjax_inputs(model, gripper, sampler)
     probs = np.asarray(jax.block_until_ready(fn(*inputs[1000])))  # compiles batch 1,000
-    jax.block_until_ready(fn(*inputs[10000]))  # compiles batch 10,000
+    digests[name] = {n: _digest(probs if n == 1000 else jax.block_until_ready(fn(*inputs[n]))) for n in inputs}
     batch = inputs[1000][1]
     # Repeats interleave dexjax's timed calls with both baselines on the first grasps of the same batch (the
     # same draws for both baselines per repeat), so each repeat's ratios share the machine's load.
@@ -199,6 +254,16 @@ def main() -> None:
         float(np.max(np.abs(np.concatenate(base_probs["cvxopt"]) - np.concatenate(base_probs["nnls"])))), 3)
     entry["solver_only"] = solver_only(problems, args.repeats, args.solver_batch, cfg.tolerance)
     result[name] = entry
+  if not args.no_devices:
+    child = _run_devices_child(args.object, args.repeats)
+    for name in digests:
+      two = child[name]
+      result[name]["two_cpu_devices"] = {
+          **{f"batch_{n}_grasps_per_s": two[f"batch_{n}_grasps_per_s"] for n in (1000, 10000)},
+          **{f"batch_{n}_over_one_device_ratio": round(two[f"batch_{n}_grasps_per_s"]
+                                                        / result[name][f"batch_{n}_grasps_per_s"], 2)
+             for n in (1000, 10000)},
+          "same_probabilities_as_one_device": all(two[f"digest_{n}"] == digests[name][n] for n in (1000, 10000))}
   print(json.dumps(result))
 
 

@@ -137,3 +137,43 @@ def test_quality_is_differentiable_in_the_grasp_centre(cube):
   assert abs(fd[1]) > 10.0 and abs(fd[2]) > 10.0  # off-centre grasps leave a torque the residual measures
   np.testing.assert_allclose(g, fd, rtol=0.05, atol=0.5)
   assert math.isfinite(float(residual(jnp.zeros(3))))
+
+
+
+_DEVICE_SCRIPT = """
+import sys
+import jax
+import numpy as np
+from dexjax.grippers import ParallelJawGripper
+from dexjax.objects import load_object_model
+from dexjax.quality import evaluate_grasps, parallel_jaw_perturbations
+from dexjax.sampling import sample_antipodal_grasps
+
+model, gripper = load_object_model('builtin:box'), ParallelJawGripper()
+grasps, _ = jax.jit(sample_antipodal_grasps, static_argnums=2)(jax.random.key(3), model, 100, gripper)
+result = evaluate_grasps(jax.random.key(4), model, grasps, gripper, parallel_jaw_perturbations())
+np.savez(sys.argv[1], devices=len(jax.local_devices()), probability=result.probability,
+         nominal_failure=result.nominal_failure)
+"""
+
+
+def test_evaluate_grasps_over_two_cpu_devices_gives_the_same_bits(tmp_path):
+  """`evaluate_grasps` splits the batch (100 grasps, padded to 128) over two CPU devices (a child process with
+  two host devices): the probabilities and nominal outcomes are this process's one-device results, bit for
+  bit (the wrench solver's pooled batching rule runs inside each device's share)."""
+  import os
+  import subprocess
+  import sys
+
+  path = tmp_path / 'two.npz'
+  env = dict(os.environ, XLA_FLAGS='--xla_force_host_platform_device_count=2', JAX_PLATFORMS='cpu')
+  child = subprocess.Popen([sys.executable, '-c', _DEVICE_SCRIPT, str(path)], env=env)
+  namespace = {}
+  exec(_DEVICE_SCRIPT.replace('np.savez(sys.argv[1],', 'out = dict('), namespace)  # One device, meanwhile.
+  assert child.wait(timeout=600) == 0
+  one, two = namespace['out'], np.load(path)
+  assert int(one['devices']) == 1 and int(two['devices']) == 2
+  for key in ('probability', 'nominal_failure'):
+    assert one[key].shape == (100,)
+    np.testing.assert_array_equal(one[key], two[key])
+  assert 0.0 < one['probability'].mean() < 1.0  # Not a trivial batch: grasps that hold and grasps that fail.
