@@ -8,11 +8,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from dexjax.contacts.parallel_jaw import close_jaws
+from dexjax.contacts.suction import suction_seal
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality import (FAILURE_REASONS, Conditions, nominal_conditions, parallel_jaw_perturbations,
                             parallel_jaw_quality, robust_parallel_jaw_quality, robust_suction_quality,
                             suction_perturbations, suction_quality)
+from dexjax.quality.grasp_quality import parallel_jaw_residual, suction_residual
 
 PJ = ParallelJawGripper()
 CUP = SuctionGripper()
@@ -49,6 +52,30 @@ def test_centred_parallel_jaw_grasp_on_cube_resists_and_corner_grasp_does_not(cu
   key = jax.random.key(0)
   assert float(_robust_pj(key, cube, CENTRED, PJ).probability) >= 0.8
   assert float(_robust_pj(key, cube, CORNER, PJ).probability) <= 0.2
+
+
+def test_wrench_test_runs_only_when_the_earlier_tests_pass(cube, box):
+  """A draw that failed an earlier test (slip, no seal) reports residual +inf and its failure code; the wrench
+  residual itself, as the smooth quality asks for it, is still finite there, and where the earlier tests pass
+  the hard quality's residual is the wrench residual."""
+  c = nominal_conditions(parallel_jaw_perturbations(), DOWN)
+  for grasp, failure in ((CORNER, "slip"), (CENTRED, "none")):
+    out = _pj_quality(cube, grasp, PJ, c)
+    residual = parallel_jaw_residual(cube, close_jaws(cube, grasp, PJ), PJ, c)
+    assert FAILURE_REASONS[int(out.failure)] == failure and np.isfinite(float(residual))
+    if failure == "none":  # The same problem (up to the rounding of a separately compiled contact search).
+      np.testing.assert_allclose(float(out.residual), float(residual), atol=1e-5)
+    else:
+      assert float(out.residual) == np.inf
+  c = nominal_conditions(suction_perturbations(), DOWN)
+  for grasp, failure in ((_suction([0.037, 0.0, 0.02]), "no_seal"), (_suction([0.0, 0.0, 0.02]), "none")):
+    out = _suction_quality(box, grasp, CUP, c)
+    residual = suction_residual(box, suction_seal(box, grasp, CUP), CUP, c)
+    assert FAILURE_REASONS[int(out.failure)] == failure and np.isfinite(float(residual))
+    if failure == "none":  # The same problem (up to the rounding of a separately compiled contact search).
+      np.testing.assert_allclose(float(out.residual), float(residual), atol=1e-5)
+    else:
+      assert float(out.residual) == np.inf
 
 
 def test_parallel_jaw_resistance_depends_on_mass_through_the_force_limit(cube):

@@ -74,7 +74,8 @@ class GraspOutcome:
 
   Attributes:
     resists: () bool, the grasp holds the object against the external wrench.
-    residual: () float, newtons: unresisted wrench plus force-limit excess (inf when no wrench test ran).
+    residual: () float, newtons: unresisted wrench plus force-limit excess (+inf when an earlier test failed, so
+      no wrench test ran).
     failure: () int32 index into `FAILURE_REASONS` (0 when ``resists``).
   """
 
@@ -93,24 +94,41 @@ def _scale_torques(wrench: jax.Array, torque_scale) -> jax.Array:
   return jnp.concatenate([wrench[:3], torque_scale * wrench[3:]])
 
 
+def _residual(wrenches, target, groups, limits, needed) -> jax.Array:
+  """`wrench_residual`, or +inf where ``needed`` is False (a draw that failed an earlier test): its problem is
+  swapped for the trivial one (zero target and limits), which the batched solver finishes in its first
+  iteration instead of spending ~10 on a result nobody reads. ``needed=True`` (static) solves as given."""
+  if needed is True:
+    return wrench_residual(wrenches, target, groups, limits)
+  residual = wrench_residual(wrenches, jnp.where(needed, target, 0.0), groups, jnp.where(needed, limits, 0.0))
+  return jnp.where(needed, residual, jnp.inf)
+
+
 def parallel_jaw_residual(model: ObjectModel, contacts: JawContacts, gripper: ParallelJawGripper,
-                          conditions: Conditions, config: QualityConfig = QualityConfig()) -> jax.Array:
+                          conditions: Conditions, config: QualityConfig = QualityConfig(),
+                          needed: jax.Array | bool = True) -> jax.Array:
   """() wrench-resistance residual (N) of the soft-finger contacts of a closed parallel-jaw grasp against the
-  external wrench of ``conditions`` (`dexjax.quality.wrench.wrench_residual`)."""
+  external wrench of ``conditions`` (`dexjax.quality.wrench.wrench_residual`); +inf where ``needed`` (a () bool)
+  is False, without solving."""
   wrenches, groups, limits = soft_finger_wrenches(contacts, model.center_of_mass, conditions.friction, gripper,
                                                   config.torque_scale)
   target = -_scale_torques(external_wrench(conditions, config), config.torque_scale)
-  return wrench_residual(wrenches, target, groups, limits)
+  return _residual(wrenches, target, groups, limits, needed)
 
 
 def suction_residual(model: ObjectModel, seal: SealResult, gripper: SuctionGripper, conditions: Conditions,
-                     config: QualityConfig = QualityConfig()) -> jax.Array:
+                     config: QualityConfig = QualityConfig(), needed: jax.Array | bool = True) -> jax.Array:
   """() wrench-resistance residual (N) of the suction-ring contact at ``seal``'s contact against the vacuum's
-  pull and the external wrench of ``conditions``."""
+  pull and the external wrench of ``conditions``; +inf where ``needed`` (a () bool) is False, without solving."""
   wrenches, groups, limits, vacuum = suction_wrenches(seal.contact, seal.approach, model.center_of_mass,
                                                       conditions.friction, gripper, config.torque_scale)
   target = vacuum - _scale_torques(external_wrench(conditions, config), config.torque_scale)
-  return wrench_residual(wrenches, target, groups, limits)
+  return _residual(wrenches, target, groups, limits, needed)
+
+
+def _passes(checks) -> jax.Array:
+  """() bool: none of the ordered (failed, code) checks failed (the wrench test decides)."""
+  return ~jnp.any(jnp.stack([failed for failed, _ in checks]))
 
 
 def _outcome(residual, checks, config: QualityConfig) -> GraspOutcome:
@@ -143,9 +161,9 @@ def parallel_jaw_quality(model: ObjectModel, grasp: ParallelJawGrasp, gripper: P
   body_collides = jaw_collides(model, grasp, gripper, config.geometry, config.collision_tolerance, jaw_samples)
   in_cone = jax.vmap(in_friction_cone, in_axes=(0, 0, None))(contacts.normals, contacts.directions,
                                                              conditions.friction)
-  residual = parallel_jaw_residual(model, contacts, gripper, conditions, config)
   checks = [(jnp.any(contacts.collision) | body_collides, JAW_COLLISION), (~jnp.all(contacts.found), NO_CONTACT),
             (~jnp.all(in_cone), SLIP)]
+  residual = parallel_jaw_residual(model, contacts, gripper, conditions, config, needed=_passes(checks))
   return _outcome(residual, checks, config)
 
 
@@ -158,6 +176,6 @@ def suction_quality(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGri
   forces and torques (vacuum, friction, torsional friction, elastic limit) balance the external wrench.
   """
   seal = suction_seal(model, grasp, gripper)
-  residual = suction_residual(model, seal, gripper, conditions, config)
   checks = [(~seal.contact_found, NO_CONTACT), (~seal.sealed, NO_SEAL)]
+  residual = suction_residual(model, seal, gripper, conditions, config, needed=_passes(checks))
   return _outcome(residual, checks, config)
