@@ -58,22 +58,17 @@ def test_wrench_test_runs_only_when_the_earlier_tests_pass(cube, box):
   """A draw that failed an earlier test (slip, no seal) reports residual +inf and its failure code; the wrench
   residual itself, as the smooth quality asks for it, is still finite there, and where the earlier tests pass
   the hard quality's residual is the wrench residual."""
-  c = nominal_conditions(parallel_jaw_perturbations(), DOWN)
-  for grasp, failure in ((CORNER, "slip"), (CENTRED, "none")):
-    out = _pj_quality(cube, grasp, PJ, c)
-    residual = parallel_jaw_residual(cube, close_jaws(cube, grasp, PJ), PJ, c)
-    assert FAILURE_REASONS[int(out.failure)] == failure and np.isfinite(float(residual))
+  jaw, cup = nominal_conditions(parallel_jaw_perturbations(), DOWN), nominal_conditions(suction_perturbations(), DOWN)
+  hard = {"jaw": lambda g: _pj_quality(cube, g, PJ, jaw), "cup": lambda g: _suction_quality(box, g, CUP, cup)}
+  wrench_only = {"jaw": lambda g: parallel_jaw_residual(cube, close_jaws(cube, g, PJ), PJ, jaw),
+                 "cup": lambda g: suction_residual(box, suction_seal(box, g, CUP), CUP, cup)}
+  for gripper, grasp, failure in (("jaw", CORNER, "slip"), ("jaw", CENTRED, "none"),
+                                  ("cup", _suction([0.037, 0.0, 0.02]), "no_seal"),
+                                  ("cup", _suction([0.0, 0.0, 0.02]), "none")):
+    out, residual = hard[gripper](grasp), float(wrench_only[gripper](grasp))
+    assert FAILURE_REASONS[int(out.failure)] == failure and np.isfinite(residual)
     if failure == "none":  # The same problem (up to the rounding of a separately compiled contact search).
-      np.testing.assert_allclose(float(out.residual), float(residual), atol=1e-5)
-    else:
-      assert float(out.residual) == np.inf
-  c = nominal_conditions(suction_perturbations(), DOWN)
-  for grasp, failure in ((_suction([0.037, 0.0, 0.02]), "no_seal"), (_suction([0.0, 0.0, 0.02]), "none")):
-    out = _suction_quality(box, grasp, CUP, c)
-    residual = suction_residual(box, suction_seal(box, grasp, CUP), CUP, c)
-    assert FAILURE_REASONS[int(out.failure)] == failure and np.isfinite(float(residual))
-    if failure == "none":  # The same problem (up to the rounding of a separately compiled contact search).
-      np.testing.assert_allclose(float(out.residual), float(residual), atol=1e-5)
+      np.testing.assert_allclose(float(out.residual), residual, atol=1e-5)
     else:
       assert float(out.residual) == np.inf
 
