@@ -7,7 +7,7 @@ size so repeated calls with different counts reuse one compilation, and grasp ``
 With several local devices the batch is split evenly over them (`jax.shard_map`), each running its share as
 its own program; results are the same bits as on one device. On a CPU, start Python with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>``: one device per core uses the cores better than
-one device's intra-operation threads (README, "Grasp quality": 1.15-1.2x on two cores).
+one device's intra-operation threads (README, "Grasp quality": 1.1-1.7x on two cores).
 """
 
 from __future__ import annotations
