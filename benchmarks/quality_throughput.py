@@ -34,9 +34,10 @@ largest residual difference. This isolates the solver from the contact work. The
 NNLS equals the cvxopt QP is ``solver_only.<gripper>.max_abs_residual_diff_cvxopt_tight_vs_nnls``.
 
 ``two_cpu_devices`` (skip with ``--no-devices``): the same dexjax function on the same batches, split over two
-CPU devices (a child process started with ``XLA_FLAGS=--xla_force_host_platform_device_count=2``, the batch
-split by ``jax.shard_map`` as `dexjax.quality.evaluate_grasps` does with several devices): grasps/s at batch
-1,000 and 10,000 (median of ``--repeats``), and whether the probabilities equal the one-device run's bit for bit.
+CPU devices (a child process started with ``XLA_FLAGS=--xla_force_host_platform_device_count=2``; the batch is
+split by `dexjax.quality.split_over_devices`, as `dexjax.quality.evaluate_grasps` does with several devices):
+grasps/s at batch 1,000 and 10,000 (median of ``--repeats``), and whether the probabilities equal the one-device
+run's bit for bit.
 
 The machine is shared and noisy: compare ratios measured in the same run, not absolute figures.
 """
@@ -55,7 +56,6 @@ import cvxopt
 import jax
 import numpy as np
 import scipy
-from jax.sharding import Mesh, PartitionSpec
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -66,7 +66,7 @@ import _numpy_baseline as baseline  # noqa: E402
 from dexjax.grippers import ParallelJawGripper, SuctionGripper  # noqa: E402
 from dexjax.objects import load_object_model  # noqa: E402
 from dexjax.quality import (QualityConfig, nnls, parallel_jaw_perturbations, robust_parallel_jaw_quality,  # noqa: E402
-                            robust_suction_quality, suction_perturbations)
+                            robust_suction_quality, split_over_devices, suction_perturbations)
 from dexjax.sampling import sample_antipodal_grasps, sample_suction_grasps  # noqa: E402
 
 _TIGHT = {"abstol": 1e-10, "reltol": 1e-10, "feastol": 1e-10}
@@ -166,12 +166,9 @@ def _digest(probabilities) -> str:
 def devices_child(object_name: str, repeats: int) -> None:
   """Child process with several CPU devices: grasps/s of the batch split over them, and result digests."""
   model, cfg = load_object_model(object_name), QualityConfig()
-  mesh = Mesh(np.asarray(jax.local_devices()), ("grasps",))
-  out = {"devices": mesh.size}
+  out = {"devices": len(jax.local_devices())}
   for name, (gripper, pert, robust, sampler) in _setups().items():
-    per = jax.vmap(lambda k, g: robust(k, model, g, gripper, pert, cfg).probability)
-    fn = jax.jit(jax.shard_map(per, mesh=mesh, in_specs=(PartitionSpec("grasps"),) * 2,
-                               out_specs=PartitionSpec("grasps"), check_vma=False))
+    fn = jax.jit(split_over_devices(jax.vmap(lambda k, g: robust(k, model, g, gripper, pert, cfg).probability)))
     entry = {}
     for n, inp in _dexjax_inputs(model, gripper, sampler).items():
       entry[f"digest_{n}"] = _digest(jax.block_until_ready(fn(*inp)))

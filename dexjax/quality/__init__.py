@@ -1,6 +1,6 @@
 """Analytic grasp quality: wrench resistance, deterministic and robust (Monte-Carlo) quality, heap rewards."""
 
-from dexjax.quality.batched import GraspEvaluation, evaluate_grasps
+from dexjax.quality.batched import GraspEvaluation, evaluate_grasps, split_over_devices
 from dexjax.quality.grasp_quality import (FAILURE_REASONS, Conditions, GraspOutcome, QualityConfig,
                                           external_wrench, parallel_jaw_quality, suction_quality)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_SAMPLES, SUPERVISOR_THRESHOLD,
@@ -20,7 +20,7 @@ from dexjax.quality.smooth import (ParallelJawMargins, Smoothing, SuctionMargins
 from dexjax.quality.grasp_optimization import AscentResult, AscentSettings, move_grasp, optimize_grasp
 
 __all__ = [
-    "GraspEvaluation", "evaluate_grasps", "FAILURE_REASONS", "Conditions", "GraspOutcome", "QualityConfig",
+    "GraspEvaluation", "evaluate_grasps", "split_over_devices", "FAILURE_REASONS", "Conditions", "GraspOutcome", "QualityConfig",
     "external_wrench", "parallel_jaw_quality", "suction_quality", "REWARD_SAMPLES", "REWARD_THRESHOLD",
     "SUPERVISOR_SAMPLES", "SUPERVISOR_THRESHOLD", "Perturbations", "RobustQuality", "nominal_conditions",
     "parallel_jaw_perturbations", "perturb_parallel_jaw_grasp", "perturb_suction_grasp",

@@ -4,15 +4,15 @@ Wraps the single-grasp functions in one jitted ``vmap`` per gripper. Batches are
 size so repeated calls with different counts reuse one compilation, and grasp ``i`` draws its samples from
 ``fold_in(key, i)``, so a grasp's result depends only on the key and its index, not on the batch it is in.
 
-With several local devices the batch is split evenly over them (`jax.shard_map`), each running its share as
-its own program; results are the same bits as on one device. On a CPU, start Python with
+With several local devices the batch is split evenly over them (`split_over_devices`), each running its share
+as its own program; results are the same bits as on one device. On a CPU, start Python with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>``: one device per core uses the cores better than
 one device's intra-operation threads (README, "Grasp quality": 1.1-1.7x on two cores).
 """
 
 from __future__ import annotations
 
-import functools
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -54,23 +54,28 @@ def _evaluate_one(key, index, model, grasp, gripper, perturbations, config):
   return GraspEvaluation(nominal=nominal.resists, nominal_failure=nominal.failure, probability=robust.probability)
 
 
-@functools.partial(jax.jit, static_argnames='mesh')
-def _evaluate_batch(key, indices, model, grasps, gripper, perturbations, config, mesh=None):
+def split_over_devices(fn: Callable[..., Any]) -> Callable[..., Any]:
+  """``fn``, batched along the leading axis of every argument and output, with its batch split evenly over the
+  local devices (`jax.shard_map`; each device runs its share as its own program); ``fn`` itself on one device.
+  Callers pad the batch to a multiple of ``len(jax.local_devices())``.
+
+  (``check_vma=False``: the solver's loops start from constants that shard_map's check would ask to be marked as
+  varying; every value here is per device anyway.)"""
+  devices = jax.local_devices()
+  if len(devices) == 1:
+    return fn
+  split = PartitionSpec('grasps')
+  return jax.shard_map(fn, mesh=Mesh(np.asarray(devices), ('grasps',)), in_specs=split, out_specs=split,
+                       check_vma=False)
+
+
+@jax.jit
+def _evaluate_batch(key, indices, model, grasps, gripper, perturbations, config):
   def evaluate(indices, grasps):
     return jax.vmap(_evaluate_one, in_axes=(None, 0, None, 0, None, None, None))(
         key, indices, model, grasps, gripper, perturbations, config)
 
-  if mesh is None:
-    return evaluate(indices, grasps)
-  split = PartitionSpec('grasps')
-  return jax.shard_map(evaluate, mesh=mesh, in_specs=(split, split), out_specs=split, check_vma=False)(
-      indices, grasps)
-
-
-def _grasp_mesh() -> Mesh | None:
-  """A one-axis (``grasps``) mesh over the local devices, or None for a single device."""
-  devices = jax.local_devices()
-  return Mesh(np.asarray(devices), ('grasps',)) if len(devices) > 1 else None
+  return split_over_devices(evaluate)(indices, grasps)
 
 
 def _bucket(n: int, minimum: int = 64, multiple: int = 1) -> int:
@@ -100,9 +105,11 @@ def evaluate_grasps(key: jax.Array, model: ObjectModel, grasps: ParallelJawGrasp
   if n == 0:
     return GraspEvaluation(nominal=np.zeros(0, bool), nominal_failure=np.zeros(0, np.int32),
                            probability=np.zeros(0, np.float32))
-  mesh = _grasp_mesh()
-  size = _bucket(n, multiple=1 if mesh is None else mesh.size)
+  size = _bucket(n, multiple=len(jax.local_devices()))
   padded = jax.tree.map(lambda x: np.concatenate([np.asarray(x), np.repeat(np.asarray(x)[-1:], size - n, 0)]),
                         grasps)
-  out = _evaluate_batch(key, jnp.arange(size), model, padded, gripper, perturbations, config, mesh=mesh)
+  out = _evaluate_batch(key, jnp.arange(size), model, padded, gripper, perturbations, config)
   return jax.tree.map(lambda x: np.asarray(x)[:n], out)
+
+
+__all__ = ['GraspEvaluation', 'evaluate_grasps', 'split_over_devices']

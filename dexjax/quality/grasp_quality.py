@@ -97,9 +97,7 @@ def _scale_torques(wrench: jax.Array, torque_scale) -> jax.Array:
 def _residual(wrenches, target, groups, limits, needed) -> jax.Array:
   """`wrench_residual`, or +inf where ``needed`` is False (a draw that failed an earlier test): its problem is
   swapped for the trivial one (zero target and limits), which the batched solver finishes in its first
-  iteration instead of spending ~10 on a result nobody reads. ``needed=True`` (static) solves as given."""
-  if needed is True:
-    return wrench_residual(wrenches, target, groups, limits)
+  iteration instead of spending ~10 on a result nobody reads."""
   residual = wrench_residual(wrenches, jnp.where(needed, target, 0.0), groups, jnp.where(needed, limits, 0.0))
   return jnp.where(needed, residual, jnp.inf)
 

@@ -58,14 +58,14 @@ def pooled_loop(step: Callable[[Any, Any], Any], init: Any, inputs: Any, num_ite
   batch = jax.tree.leaves(inputs)[0].shape[0]
   lanes = max(1, min(pool_size, batch))
   stack = lambda tree, k: jax.tree.map(lambda x: jnp.broadcast_to(x, (k,) + jnp.shape(x)), tree)
+  results = stack(keep(init), batch)
   if batch == 0 or num_iterations <= 0:
-    return stack(keep(init), batch)
+    return results
   step_lanes = jax.vmap(step)
   done_lanes = jax.vmap(is_done)
   keep_lanes = jax.vmap(keep)
   fresh = stack(init, lanes)
   first = jnp.arange(lanes, dtype=jnp.int32)
-  results = stack(keep(init), batch)
 
   def cond(carry):
     return jnp.any(carry[3])

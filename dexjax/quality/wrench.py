@@ -454,6 +454,8 @@ def _lawson_hanson(num_iterations: int) -> Callable[[jax.Array, jax.Array, jax.A
 
   def many(a, b, dual_tol):  # a (B, m, n), b (B, m), dual_tol (B,)
     m, n = a.shape[1:]
+    # The transpose travels with each problem (as `one` computes it once): transposing in every step measured
+    # 0.9x (103-108k vs 115-117k problems/s).
     step = lambda item, s: _step(item[0], item[1], item[2], item[3], s)
     return pooled_loop(step, _initial_state(m, n), (a, jnp.swapaxes(a, 1, 2), b, dual_tol), num_iterations,
                        lambda s: s.done, keep=_final_fields)
