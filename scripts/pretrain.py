@@ -7,7 +7,8 @@
   python scripts/pretrain.py ship --run RUN --eval NAME=DIR ... --data DIR --data-command "..." \
                                   --train-command "..."
   python scripts/pretrain.py s1 --data DIR ... [--model pretrained] [--rows 1000]
-  python scripts/pretrain.py ceiling --data DIR --shards N
+  python scripts/pretrain.py ceiling --data DIR [--config YAML] [--shards N] [--draws 100] [--friction-draws K]
+                                     [--model pretrained]
 
 ``curve`` trains one run per fraction of the dataset's shards (the first k shards: shards hold independent
 heaps, so a prefix is a uniform subset) into ``OUT/rows-<fraction>``, each resumable (rerun the same command), and
@@ -16,8 +17,9 @@ training); it writes ``OUT/curve.json`` after each run and prints it. ``score`` 
 ``ship`` writes the run's best models into the package (``dexjax/models/weights/<gripper>.msgpack``, read by
 `dexjax.models.pretrained`) with a model card's facts in their ``info``: the data (command, objects, rows), the
 network, the training (command, seconds) and the metrics. ``s1`` prints Fig. S1 (C) as numbers: the t-SNE
-separation of every layer on random rows of unseen objects; ``ceiling`` the balanced accuracy the labels' own
-Monte-Carlo noise allows. Nothing here is needed to *use* the shipped models.
+separation of every layer on random rows of unseen objects; ``ceiling`` how far the labels let a model go: the
+dataset's rows labelled again with independent draws (a second labelling, and an oracle that knows each grasp's
+robust probability from 100 draws), beside the model's scores. Nothing here is needed to *use* the shipped models.
 """
 
 from __future__ import annotations
@@ -146,32 +148,82 @@ def _ship(args) -> dict:
   return {'written': written, 'metrics': scores}
 
 
+def _relabelled(shards: list, models, params, seed: int, friction_draws: int = 0) -> dict:
+  """Every row of ``shards`` labelled again (`dexjax.generate.relabel_shard`), shard i with ``fold_in(key(seed),
+  i)``: concatenated ``robust_probability``, ``reward``, ``failure``."""
+  import jax  # pylint: disable=g-import-not-at-top
+  import numpy as np  # pylint: disable=g-import-not-at-top
+  from dexjax.generate.relabel import relabel_shard  # pylint: disable=g-import-not-at-top
+  parts = [relabel_shard(models, params, shard, jax.random.fold_in(jax.random.key(seed), i),
+                         friction_draws=friction_draws) for i, shard in enumerate(shards)]
+  return {k: np.concatenate([getattr(r, k) for r in parts]) for k in ('robust_probability', 'reward', 'failure')}
+
+
+def _best_threshold(probability, decided, labels) -> dict:
+  """Balanced accuracy of "decided and probability > t" against ``labels``, at t = 0.5 and at the best t of
+  0.05, 0.10, ..., 0.95 (a predictor of the robust probability may pick its threshold)."""
+  import numpy as np  # pylint: disable=g-import-not-at-top
+  from dexjax.train.metrics import classification_metrics  # pylint: disable=g-import-not-at-top
+  score = lambda t: classification_metrics(decided & (probability > t), labels)['balanced_accuracy']
+  best = max((score(t), float(t)) for t in np.round(np.linspace(0.05, 0.95, 19), 2))
+  return {'at_0.5': round(score(0.5), 3), 'best': round(best[0], 3), 'best_threshold': best[1]}
+
+
 def _label_ceiling(args) -> dict:
-  """How well any model could score against the labels' own noise: treating each row's measured robust
-  probability (M draws) as the truth, a fresh M-draw label is drawn for every row where robustness decided the
-  reward, and an oracle that predicts "truth > threshold" is scored against it (balanced accuracy). Only rows
-  decided by robustness carry this noise; collisions and wrong object counts are exact."""
+  """How far a dataset's labels let a model go, measured by labelling its rows again (same heaps, images and
+  grasps; `dexjax.generate.relabel_shard`): how many labels a second M-draw labelling with independent draws
+  flips and how well it predicts the first (``second_labelling``); how well a predictor that knew each grasp's
+  robust probability (estimated with ``--draws`` draws) scores against the labels (``oracle``), also when it
+  does not know the objects' friction (``--friction-draws``: ``oracle_without_friction``); and, with
+  ``--model``, the model's balanced accuracy against the labels and against the many-draw ones."""
   import numpy as np  # pylint: disable=g-import-not-at-top
   from dexjax.data import GRIPPER_NAMES, read_shard  # pylint: disable=g-import-not-at-top
+  from dexjax.generate import label_params  # pylint: disable=g-import-not-at-top
+  from dexjax.generate.pipeline import usable_objects  # pylint: disable=g-import-not-at-top
+  from dexjax.generate.run import load_run_config  # pylint: disable=g-import-not-at-top
+  from dexjax.models.shipped import load_models  # pylint: disable=g-import-not-at-top
   from dexjax.quality.heap_reward import NONE, NOT_ROBUST  # pylint: disable=g-import-not-at-top
-  shards = [shard_path(args.data, i) for i in range(args.shards)]
-  rows = [read_shard(path).rows for path in shards]
-  cols = {k: np.concatenate([r[k] for r in rows]) for k in ('gripper', 'robust_probability', 'failure')}
-  data_config = json.loads((Path(args.data) / 'config.json').read_text())['config']
-  m, threshold = data_config['reward']['num_samples'], data_config['reward']['threshold']
-  rng = np.random.default_rng(args.seed)
-  out = {'rows': int(len(cols['gripper'])), 'num_samples': m, 'threshold': threshold}
-  for index, gripper in enumerate(GRIPPER_NAMES):
-    sel = cols['gripper'] == index
-    p = np.clip(cols['robust_probability'][sel].astype(np.float64), 0.0, 1.0)
-    decided = np.isin(cols['failure'][sel], (NONE, NOT_ROBUST))
-    label = decided & (rng.binomial(m, p) / m > threshold)
-    oracle = decided & (p > threshold)
-    tpr, tnr = (oracle & label).sum() / max(label.sum(), 1), (~oracle & ~label).sum() / max((~label).sum(), 1)
-    near = decided & (np.abs(p - threshold) <= 0.2)
-    out[gripper] = {'rows': int(sel.sum()), 'balanced_accuracy_ceiling': round(float((tpr + tnr) / 2), 3),
-                    'robustness_decided': round(float(decided.mean()), 3),
-                    'within_0.2_of_threshold': round(float(near.mean()), 3)}
+  from dexjax.train import TrainConfig  # pylint: disable=g-import-not-at-top
+  from dexjax.train.metrics import classification_metrics  # pylint: disable=g-import-not-at-top
+  from dexjax.train.validation import predict_rows  # pylint: disable=g-import-not-at-top
+  data = Path(args.data)
+  config = load_run_config(data, args.config)
+  paths = list_shards(data)[:args.shards]
+  shards = [read_shard(path) for path in paths]
+  models = [p.model for p in usable_objects(config)[0]]
+  params = label_params(config)
+  many = params.replace(reward=params.reward.replace(num_samples=args.draws))
+  second = _relabelled(shards, models, params, args.seed)
+  oracle = _relabelled(shards, models, many, args.seed + 1)
+  blind = _relabelled(shards, models, many, args.seed + 2, args.friction_draws) if args.friction_draws else None
+  col = lambda k: np.concatenate([s.rows[k] for s in shards])
+  gripper, labels, failure = col('gripper'), col('reward').astype(bool), col('failure')
+  where = {(i, r): n for n, (i, r) in enumerate((i, r) for i, s in enumerate(shards)
+                                                 for r in range(len(s.rows['gripper'])))}
+  trained = load_models(args.model, GRIPPER_NAMES) if args.model else {}
+  out = {'data': os.fspath(data), 'shards': len(shards), 'num_samples': params.reward.num_samples,
+         'draws': args.draws, 'friction_draws': args.friction_draws}
+  for code, name in enumerate(GRIPPER_NAMES):
+    sel = gripper == code
+    decided = np.isin(failure[sel], (NONE, NOT_ROBUST))
+    lab = labels[sel]
+    result = {'rows': int(sel.sum()), 'positives': int(lab.sum()),
+              'robustness_decided': round(float(decided.mean()), 3),
+              'second_labelling': {'flipped': round(float((second['reward'][sel] != lab).mean()), 4),
+                                   'balanced_accuracy': round(classification_metrics(second['reward'][sel], lab)[
+                                       'balanced_accuracy'], 3)},
+              'oracle': _best_threshold(oracle['robust_probability'][sel], decided, lab)}
+    if blind is not None:
+      result['oracle_without_friction'] = _best_threshold(blind['robust_probability'][sel], decided, lab)
+    if name in trained:
+      rows = predict_rows(trained[name], data, TrainConfig(), 'all')
+      index = np.array([where[(int(i), int(r))] for i, r in zip(rows['shard_index'], rows['row_index'])])
+      # Scores back in the shard order: the rows of this gripper, sorted by their position among all rows.
+      scores = rows['scores'][np.argsort(index)]
+      result['model'] = {
+          'balanced_accuracy': round(classification_metrics(scores, lab)['balanced_accuracy'], 3),
+          'against_many_draws': round(classification_metrics(scores, oracle['reward'][sel])['balanced_accuracy'], 3)}
+    out[name] = result
   return out
 
 
@@ -222,9 +274,14 @@ def main(argv: list[str] | None = None) -> int:
   f.add_argument('--model', default='pretrained')
   f.add_argument('--rows', type=int, default=1000)
   f.add_argument('--seed', type=int, default=0)
-  n = sub.add_parser('ceiling', help="the labels' noise: an oracle's balanced accuracy against fresh M-draw labels")
+  n = sub.add_parser('ceiling', help="how far the labels let a model go: the rows labelled again")
   n.add_argument('--data', required=True)
-  n.add_argument('--shards', type=int, required=True, help='the first N shards')
+  n.add_argument('--config', help='the generation config the data was made with (default: the defaults)')
+  n.add_argument('--shards', type=int, help='the first N shards (default: all)')
+  n.add_argument('--draws', type=int, default=100, help="the oracle's Monte-Carlo draws per grasp (default 100)")
+  n.add_argument('--friction-draws', type=int, default=0,
+                 help='also an oracle that does not know the friction: k prior frictions per grasp (default 0: no)')
+  n.add_argument('--model', help="also score this model ('pretrained', a run, a model file)")
   n.add_argument('--seed', type=int, default=0)
   args = p.parse_args(argv)
   if args.command == 'ceiling':

@@ -24,10 +24,12 @@ from dexjax.data import (GRIPPER_NAMES, IMAGE_SCHEMA, ROW_SCHEMA, iterate_rows, 
                          shard_path)
 from dexjax.generate.__main__ import main
 from dexjax.generate.config import GenerateConfig, config_from_dict, fingerprint, load_generate_config
-from dexjax.generate.pipeline import ShardGenerator
+from dexjax.generate.pipeline import ShardGenerator, label_params, usable_objects
+from dexjax.generate.relabel import generation_reward_keys, relabel_shard
 from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions
-from dexjax.generate.run import generate_dataset, num_shards
+from dexjax.generate.run import generate_dataset, load_run_config, num_shards
 from dexjax.quality import REWARD_FAILURES
+from dexjax.quality.heap_reward import NONE, NOT_ROBUST
 from dexjax.sampling import grasp_crop
 
 SMALL = {
@@ -445,3 +447,106 @@ def test_ray_workers_write_the_same_shards_as_the_serial_run(run, tmp_path):
   digest = lambda p: hashlib.sha256(p.read_bytes()).hexdigest()
   for index in range(num_shards(config, NUM_IMAGES)):
     assert digest(shard_path(tmp_path, index)) == digest(shard_path(out, index)), index
+
+
+def _relabel_inputs(run):
+  """(config, object models, label params, shards) of the module's run."""
+  config, out, cache, _ = run
+  prepared, _ = usable_objects(config, str(cache))
+  return config, [p.model for p in prepared], label_params(config), [read_shard(p) for p in list_shards(out)]
+
+
+def test_relabelling_with_the_generators_keys_reproduces_every_label(run):
+  """The stored grasps labelled again in the stored heap (object ids, settled poses, friction), with the keys the
+  generator drew them with, give the stored reward, robust probability and failure bit for bit: a shard holds
+  everything its labels depend on, and `relabel_shard` rebuilds the same grasps and scene."""
+  config, models, params, shards = _relabel_inputs(run)
+  checked = 0
+  for index, shard in enumerate(shards):
+    keys, known = generation_reward_keys(config.seed, index, shard, params.policy.actions_per_gripper)
+    got = relabel_shard(models, params, shard, None, keys=keys)
+    for field in ('reward', 'robust_probability', 'failure'):
+      want = shard.rows[field].astype(getattr(got, field).dtype)
+      np.testing.assert_array_equal(getattr(got, field)[known], want[known], err_msg=field)
+    checked += int(known.sum())
+  assert checked >= 2 * 16  # at least two whole image-gripper groups
+
+
+def test_generation_keys_are_unknown_where_an_image_lost_actions(run):
+  """Without one row, which action each row of that image and gripper was is unknown: those rows are marked,
+  the rest keep their keys (and still reproduce their labels)."""
+  config, models, params, shards = _relabel_inputs(run)
+  shard = shards[0]
+  first = (shard.rows['image_index'] == 0) & (shard.rows['gripper'] == 0)
+  full, _ = generation_reward_keys(config.seed, 0, shard, params.policy.actions_per_gripper)
+  drop = int(np.flatnonzero(first)[0])
+  rows = {k: np.delete(v, drop, axis=0) for k, v in shard.rows.items()}
+  cut = dataclasses.replace(shard, rows=rows)
+  keys, known = generation_reward_keys(config.seed, 0, cut, params.policy.actions_per_gripper)
+  group = (rows['image_index'] == 0) & (rows['gripper'] == 0)
+  assert not known[group].any()
+  rest = ~group & known
+  assert rest.any()
+  same = np.delete(np.asarray(jax.random.key_data(full)), drop, axis=0)
+  np.testing.assert_array_equal(np.asarray(jax.random.key_data(keys))[rest], same[rest])
+
+
+def test_relabelling_with_new_draws_changes_only_what_the_draws_decide(run):
+  """Independent draws: collisions and object counts (exact, on the nominal grasp) keep their failure; the rest
+  is decided again by M = 10 draws (probabilities in tenths, reward strictly over 0.5), and some of those
+  probabilities change. With the friction drawn from its prior twice, the probability is a mean of 2 x 10 draws."""
+  _, models, params, shards = _relabel_inputs(run)
+  shard = shards[0]
+  stored = shard.rows['failure']
+  decided = np.isin(stored, (NONE, NOT_ROBUST))
+  first, second = (relabel_shard(models, params, shard, jax.random.key(k)) for k in (1, 2))
+  blind = relabel_shard(models, params, shard, jax.random.key(1), friction_draws=2)
+  for got, draws in ((first, 10), (second, 10), (blind, 20)):
+    np.testing.assert_array_equal(got.failure[~decided], stored[~decided])
+    assert np.all(np.isin(got.failure[decided], (NONE, NOT_ROBUST)))
+    np.testing.assert_allclose(got.robust_probability * draws, np.round(got.robust_probability * draws), atol=1e-4)
+    np.testing.assert_array_equal(got.reward, decided & (got.robust_probability > 0.5))
+    np.testing.assert_array_equal(got.failure == NONE, got.reward)
+  assert np.any(first.robust_probability[decided] != second.robust_probability[decided])
+
+
+def test_run_config_is_read_back_and_checked_against_the_record(run, tmp_path):
+  """`load_run_config` rebuilds the run's config from its config file plus the record's objects and seed, and
+  names the field and the run's value when the file does not match the run; no record: FileNotFoundError."""
+  config, out, _, _ = run
+  path = tmp_path / 'small.yaml'
+  # As `python -m dexjax.generate --config small.yaml --objects ... --seed 3` would have been given it.
+  path.write_text(yaml.safe_dump({k: v for k, v in SMALL.items() if k not in ('seed', 'objects')}
+                                 | {'objects': {'grid_size': 32}}))
+  again = load_run_config(out, path)
+  assert fingerprint(again) == fingerprint(config) and again.seed == config.seed
+  assert again.objects.sources == config.objects.sources
+  with pytest.raises(ConfigError, match=r'config\.json: camera\.cx: the run was made with \[99\.0, 101\.0\]'):
+    load_run_config(out)  # the defaults: Dex-Net 4.0's 500 x 500 camera
+  with pytest.raises(FileNotFoundError, match='config.json'):
+    load_run_config(tmp_path)
+
+
+def test_label_ceiling_script_reports_both_grippers(run, tmp_path, capsys):
+  """``scripts/pretrain.py ceiling`` (the model card's "how far the labels let a model go") runs on a dataset made
+  with a config file: per gripper, the rows and positives the shards hold, and the second labelling's and the
+  oracle's balanced accuracies, which lie in [0.5, 1] when both classes are present."""
+  import importlib.util  # pylint: disable=g-import-not-at-top
+  config, out, _, summary = run
+  spec = importlib.util.spec_from_file_location('pretrain',
+                                                pathlib.Path(__file__).parents[1] / 'scripts' / 'pretrain.py')
+  script = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(script)
+  path = tmp_path / 'small.yaml'
+  path.write_text(yaml.safe_dump({k: v for k, v in SMALL.items() if k not in ('seed', 'objects')}
+                                 | {'objects': {'grid_size': 32}}))
+  assert script.main(['ceiling', '--data', str(out), '--config', str(path), '--draws', '10']) == 0
+  report = json.loads(capsys.readouterr().out)
+  rows = {k: np.concatenate([read_shard(p).rows[k] for p in list_shards(out)]) for k in ('gripper', 'reward')}
+  for code, name in enumerate(GRIPPER_NAMES):
+    sel = rows['gripper'] == code
+    got = report[name]
+    assert got['rows'] == sel.sum() and got['positives'] == rows['reward'][sel].sum()
+    assert 0.0 <= got['second_labelling']['flipped'] <= 1.0
+    if 0 < got['positives'] < got['rows']:
+      assert 0.5 <= got['oracle']['at_0.5'] <= got['oracle']['best'] <= 1.0

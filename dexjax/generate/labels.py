@@ -121,6 +121,23 @@ def _choose(source: jax.Array, index: jax.Array, candidates, pool):
                       from_candidates, from_pool)
 
 
+def _image_keys(key: jax.Array) -> jax.Array:
+  """`label_image`'s six keys: candidates (parallel jaw, suction), rows (the same), supervisor (the same)."""
+  return jax.random.split(key, 6)
+
+
+def _action_reward_keys(rows_key: jax.Array, num_actions: int) -> jax.Array:
+  """(A,) reward keys of one gripper's actions, from that gripper's rows key (its tau key is the other half)."""
+  return jax.random.split(jax.random.split(rows_key)[1], num_actions)
+
+
+def reward_keys(image_key: jax.Array, gripper: int, num_actions: int) -> jax.Array:
+  """(A,) keys of the reward draws of the A actions of ``gripper`` (`PARALLEL_JAW` or `SUCTION`) in the image that
+  `label_image` labels with ``image_key``: action a's robust quality used key a. With them,
+  `dexjax.generate.relabel_shard` reproduces a shard's labels (rows are the actions that exist, in order)."""
+  return _action_reward_keys(_image_keys(image_key)[2 + gripper], num_actions)
+
+
 def _gripper_rows(key: jax.Array, code: int, camera: Camera, candidates, valid: jax.Array, pool_fn, pool_size: int,
                   label_fn, params: LabelParams) -> ImageRows:
   """The A labelled actions of one gripper: tau's choice, its 3-D grasp, pose and reward.
@@ -128,14 +145,14 @@ def _gripper_rows(key: jax.Array, code: int, camera: Camera, candidates, valid: 
   ``pool_fn()`` returns the supervisor's (image grasps (S,), eligible (S,)) and runs only when tau draws a
   supervisor action; ``label_fn(key, camera, image_grasp)`` returns (pose (4, 4), approach angle, RewardRecord).
   """
-  k_tau, k_reward = jax.random.split(key)
+  k_tau = jax.random.split(key)[0]
   wanted = supervisor_draws(k_tau, params.policy)
   empty = (jax.tree.map(lambda a: jnp.zeros((pool_size,) + a.shape[1:], a.dtype), candidates),
            jnp.zeros((pool_size,), bool))
   pool, eligible = jax.lax.cond(jnp.any(wanted), pool_fn, lambda: empty)
   source, index, ok = collection_actions(k_tau, valid, eligible, params.policy)
   chosen = _choose(source, index, candidates, pool)
-  keys = jax.random.split(k_reward, source.shape[0])
+  keys = _action_reward_keys(key, source.shape[0])
   pose, approach_angle, record = jax.vmap(label_fn, in_axes=(0, None, 0))(keys, camera, chosen)
   a = source.shape[0]
   return ImageRows(gripper=jnp.full((a,), code, jnp.int32), center=chosen.center, angle=chosen.angle,
@@ -165,7 +182,7 @@ def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Ca
   Returns:
     `ImageRows` with 2A rows: parallel jaws first.
   """
-  k_pj, k_su, k_rows_pj, k_rows_su, k_sup_pj, k_sup_su = jax.random.split(key, 6)
+  k_pj, k_su, k_rows_pj, k_rows_su, k_sup_pj, k_sup_su = _image_keys(key)
   pick = pickable_mask(depth, camera, params.bin, params.policy.floor_clearance)
   pj_cands, pj_valid = sample_antipodal_image_grasps(k_pj, depth, camera, params.parallel_jaw_sampler, mask=pick)
   su_cands, su_valid = sample_suction_image_grasps(k_su, depth, camera, params.suction_sampler, mask=pick)
@@ -198,4 +215,5 @@ def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Ca
   return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pj, su)
 
 
-__all__ = ['LABEL_VERSION', 'PARALLEL_JAW', 'SUCTION', 'ImageRows', 'LabelParams', 'label_image', 'pickable_mask']
+__all__ = ['LABEL_VERSION', 'PARALLEL_JAW', 'SUCTION', 'ImageRows', 'LabelParams', 'label_image', 'pickable_mask',
+           'reward_keys']

@@ -98,6 +98,16 @@ def _empty_stats() -> dict[str, Any]:
           'seconds': {stage: 0.0 for stage in _STAGES}}
 
 
+def _shard_keys(seed: int, index: int) -> jax.Array:
+  """Shard ``index``'s four keys: heaps, cameras, sensor noise, labels (image j folds j into each)."""
+  return jax.random.split(jax.random.key(shard_seed(seed, index)), 4)
+
+
+def image_label_key(seed: int, shard_index: int, image_index: int) -> jax.Array:
+  """The key `label_image` got for image ``image_index`` of shard ``shard_index`` of a run with ``seed``."""
+  return jax.random.fold_in(_shard_keys(seed, shard_index)[3], image_index)
+
+
 class ShardGenerator:
   """Makes shards of one run (see the module docstring); one per process. Close it (or use ``with``).
 
@@ -149,7 +159,7 @@ class ShardGenerator:
   def generate(self, index: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """The images, rows and stats of shard ``index`` (stats: counts and per-stage seconds; not stored)."""
     config, stats = self.config, _empty_stats()
-    k_heap, k_camera, k_noise, k_label = jax.random.split(jax.random.key(shard_seed(config.seed, index)), 4)
+    k_heap, k_camera, k_noise, k_label = _shard_keys(config.seed, index)
     clock = time.perf_counter()
     states = sample_heap_states(k_heap, self.heaps_per_shard, len(self.heap_objects), config.heap)
     result = settle(self.heap_objects, states, backend='rollout', settings=config.settle)
@@ -271,5 +281,5 @@ def generate_shard(index: int, config: GenerateConfig, out_dir: str, cache_dir: 
   return stats
 
 
-__all__ = ['NoObjectsError', 'ShardGenerator', 'close_process_generators', 'generate_shard', 'label_params',
-           'process_generator', 'usable_objects']
+__all__ = ['NoObjectsError', 'ShardGenerator', 'close_process_generators', 'generate_shard', 'image_label_key',
+           'label_params', 'process_generator', 'usable_objects']

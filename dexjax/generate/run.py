@@ -24,10 +24,10 @@ from pathlib import Path
 from typing import Any
 
 from dexjax.cli import OutputError, check_output_dir, is_dexjax_png
-from dexjax.config import as_dict, validate_generate_config
+from dexjax.config import ConfigError, as_dict, plain_json, validate_generate_config
 from dexjax.data.manifest import open_manifest, pending_shards
 from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
-from dexjax.generate.config import GenerateConfig, fingerprint
+from dexjax.generate.config import _SPEED_ONLY, GenerateConfig, fingerprint, load_generate_config
 from dexjax.geometry.cache import atomic_write_text
 from dexjax.generate.parallel import run_tasks
 from dexjax.generate.pipeline import (close_process_generators, generate_shard, process_generator,
@@ -94,6 +94,36 @@ def _is_dexjax_png(path: Path) -> bool:
     return is_dexjax_png(path)
   except (OSError, ValueError):
     return False
+
+
+def _flat(data: Any, prefix: str = '') -> dict[str, Any]:
+  if isinstance(data, dict):
+    return {k: v for key, value in data.items() for k, v in _flat(value, f'{prefix}{key}.').items()}
+  return {prefix[:-1]: data}
+
+
+def load_run_config(data_dir: str | os.PathLike[str], path: str | os.PathLike[str] | None = None) -> GenerateConfig:
+  """The `GenerateConfig` a finished run was made with: the config file ``path`` (default: the defaults) with the
+  run's object sources and seed (``--objects`` and ``--seed`` may have set them), checked field by field against
+  the run's ``config.json``. Fields the record lacks (older versions did not write them) and the settling fields
+  that change speed only are not compared.
+
+  Raises:
+    FileNotFoundError: ``data_dir`` has no run config record.
+    ConfigError: a field differs (named, with the run's value).
+  """
+  record_path = Path(data_dir) / CONFIG_NAME
+  if not _is_run_config(record_path):
+    raise FileNotFoundError(f'{record_path}: no run config record (python -m dexjax.generate writes one)')
+  record = json.loads(record_path.read_text(encoding='utf-8'))['config']
+  config = load_generate_config(path, objects=list(record['objects']['sources']), seed=int(record['seed']))
+  ours = _flat(plain_json(as_dict(config)))
+  speed_only = {f'settle.{k}' for k in (*_SPEED_ONLY, 'nthread')}
+  for field, value in _flat(plain_json(record)).items():
+    if field not in speed_only and field in ours and ours[field] != value:
+      raise ConfigError(os.fspath(record_path), field,
+                        f'the run was made with {value!r}, the config ({path or "defaults"}) gives {ours[field]!r}')
+  return config
 
 
 def _write_config(out_dir: Path, config: GenerateConfig) -> None:
@@ -245,4 +275,5 @@ def _preview(out: Path, total: int, assignment: tuple[int, int]) -> str | None:
   return None
 
 
-__all__ = ['CONFIG_NAME', 'PREVIEW_NAME', 'check_run_dir', 'generate_dataset', 'num_shards', 'warm_caches']
+__all__ = ['CONFIG_NAME', 'PREVIEW_NAME', 'check_run_dir', 'generate_dataset', 'load_run_config', 'num_shards',
+           'warm_caches']

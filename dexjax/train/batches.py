@@ -26,7 +26,7 @@ from dexjax.train.config import TrainConfig
 from dexjax.train.data import gripper_examples
 
 _LOADER_BATCH = 256  # rows per loader batch (both grippers); only the grouping of reads, not the result
-_SOURCE_FIELDS = ('shard_index', 'image_index', 'target_slot')  # where an evaluated row came from
+_SOURCE_FIELDS = ('shard_index', 'row_index', 'image_index', 'target_slot')  # where an evaluated row came from
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,8 +141,8 @@ def eval_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str,
                  split: str = 'val') -> Iterator[dict[str, np.ndarray]]:
   """Every row of ``gripper`` in ``split`` (``'train'``, ``'val'`` or ``'all'``), once, in batches of exactly
   ``config.loop.eval_batch_size`` (the last padded): dicts as `train_batches` plus ``mask`` (B,) bool (False on
-  padding), ``robust_probability`` (B,) and where each row came from, ``shard_index``, ``image_index`` and
-  ``target_slot`` (B,) int32."""
+  padding), ``robust_probability`` (B,) and where each row came from, ``shard_index``, ``row_index`` (in its
+  shard), ``image_index`` and ``target_slot`` (B,) int32."""
   splits = ('train', 'val') if split == 'all' else (split,)
   size = config.loop.eval_batch_size
 

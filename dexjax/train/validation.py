@@ -31,10 +31,11 @@ def predict_rows(model: GraspQualityModel, data_dir: str | os.PathLike, config: 
   ``config`` supplies the split rule (``split`` section) and the evaluation batch size; the crop size and window
   are the model's. Returns (N,) arrays in the dataset's reading order: ``scores`` p(success), ``labels`` int32,
   ``robust_probability`` (the label's Monte-Carlo estimate), ``loss`` (the cross-entropy of each row), and where
-  each row came from, ``shard_index``, ``image_index`` and ``target_slot`` (see `dexjax.data.row_groups`).
+  each row came from, ``shard_index``, ``row_index`` (its index in the shard's rows), ``image_index`` and
+  ``target_slot`` (see `dexjax.data.row_groups`).
   """
   config = dataclasses.replace(config, model=model.config, crop_window=model.crop_window)
-  keys = ('labels', 'robust_probability', 'shard_index', 'image_index', 'target_slot')
+  keys = ('labels', 'robust_probability', 'shard_index', 'row_index', 'image_index', 'target_slot')
   parts: dict[str, list] = {k: [] for k in ('scores', 'loss', *keys)}
   batches = eval_batches(data_dir, config, model.gripper, split)
   for batch in tqdm(batches, desc=f'evaluate {model.gripper}', unit='batch', disable=not progress, leave=False):

@@ -1,0 +1,167 @@
+"""Fresh reward draws for a generated dataset's rows: the same heaps, images and grasps, new Monte-Carlo draws.
+
+A row's label is the seed's reward S(x, u): the robust probability of M = 10 perturbed draws (mass, gripper pose),
+thresholded. `relabel_shard` labels every grasp a shard stores again, in the heap the shard stores (object ids,
+settled poses and per-object friction), with keys of the caller's choosing and any M:
+
+* with the generator's own keys (`generation_reward_keys`) it reproduces the stored labels, which checks that
+  nothing else enters them;
+* with independent keys and the same M it measures how much of a label is the luck of its draws (how many
+  labels a second labelling flips);
+* with many draws (M = 100) it estimates each grasp's robust probability well enough to score a predictor that
+  knew it: the best any model of the image can do against the M = 10 labels (``scripts/pretrain.py ceiling``,
+  docs/models.md);
+* with ``friction_draws`` > 0 the target's friction is drawn from the heap distribution's prior instead of taken
+  from the heap state, which a depth image does not show: the probability then averages over frictions.
+
+Work is per image and gripper, padded to the run's actions per gripper, so one compilation serves a dataset.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from dexjax.data.shards import Shard
+from dexjax.generate.labels import PARALLEL_JAW, SUCTION, LabelParams, reward_keys
+from dexjax.generate.pipeline import image_label_key
+from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
+from dexjax.quality.heap_reward import (NONE, NOT_ROBUST, HeapScene, RewardRecord, heap_scene, parallel_jaw_heap_reward,
+                                       suction_heap_reward)
+from dexjax.sim.heap import HeapDistribution, sample_friction
+
+
+@struct.dataclass
+class Relabelled:
+  """New labels of a shard's rows, in the shard's row order.
+
+  Attributes:
+    reward: (N,) bool, S(x, u) with the new draws (robust probability > threshold, where the other checks pass).
+    robust_probability: (N,) float32, the new Monte-Carlo estimate (mean over friction draws, if any).
+    failure: (N,) int32 index into `dexjax.quality.REWARD_FAILURES` (with friction draws: the first draw's).
+  """
+
+  reward: np.ndarray
+  robust_probability: np.ndarray
+  failure: np.ndarray
+
+
+def row_grasp(pose: jax.Array, gripper: int, jaw_width: float) -> ParallelJawGrasp | SuctionGrasp:
+  """The world-frame grasp a row's ``grasp_pose`` (4, 4) stands for (`dexjax.grasps.parallel_jaw_pose` and
+  `suction_pose` inverted): x is the approach, y the jaw axis; a jaw opens to ``jaw_width`` metres."""
+  if gripper == PARALLEL_JAW:
+    return ParallelJawGrasp(center=pose[:3, 3], axis=pose[:3, 1], approach=pose[:3, 0],
+                            width=jnp.asarray(jaw_width, jnp.float32))
+  return SuctionGrasp(center=pose[:3, 3], approach=pose[:3, 0])
+
+
+def _reward(key: jax.Array, pose: jax.Array, scene: HeapScene, params: LabelParams, gripper: int) -> RewardRecord:
+  grasp = row_grasp(pose, gripper, params.parallel_jaw_sampler.gripper_width)
+  if gripper == PARALLEL_JAW:
+    return parallel_jaw_heap_reward(key, grasp, scene, params.bin, params.parallel_jaw, params.reward,
+                                    params.parallel_jaw_perturbations)
+  return suction_heap_reward(key, grasp, scene, params.bin, params.suction, params.reward,
+                             params.suction_perturbations)
+
+
+def _rows_reward(keys: jax.Array, poses: jax.Array, scene: HeapScene, params: LabelParams, gripper: int,
+                 friction: jax.Array | None) -> RewardRecord:
+  """Rewards of (A,) rows of one image and gripper; ``friction`` (A,) replaces every slot's, per row."""
+  def one(key, pose, f):
+    heap = scene if f is None else scene.replace(friction=jnp.full_like(scene.friction, f))
+    return _reward(key, pose, heap, params, gripper)
+  return jax.vmap(one)(keys, poses, friction)
+
+
+_rows_reward_jit = jax.jit(_rows_reward, static_argnames=('gripper',))
+
+
+def generation_reward_keys(seed: int, shard_index: int, shard: Shard, num_actions: int
+                           ) -> tuple[jax.Array, np.ndarray]:
+  """The keys the generator drew the rows' rewards with: (keys (N,), known (N,) bool).
+
+  A row is an action that existed, in order; when an image kept all ``num_actions`` actions of a gripper, row a
+  of it is action a and its key is known. Where some actions did not exist, which action a row was is not
+  stored: those rows get placeholder keys and ``known`` False.
+  """
+  rows = shard.rows
+  keys, known = [], []
+  for j in range(len(shard.images['heap_id'])):
+    label_key = image_label_key(seed, shard_index, j)
+    for gripper in (PARALLEL_JAW, SUCTION):
+      count = int(np.sum((rows['image_index'] == j) & (rows['gripper'] == gripper)))
+      keys.append(reward_keys(label_key, gripper, num_actions)[:count])
+      known.append(np.full(count, count == num_actions))
+  # Groups were made in (image, gripper) order; rows are put back in the shard's order.
+  order = np.argsort(np.lexsort((rows['gripper'], rows['image_index'])), kind='stable')
+  return jnp.concatenate(keys)[order], np.concatenate(known)[order]
+
+
+def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.Array, *,
+                  keys: jax.Array | None = None, friction_draws: int = 0,
+                  heap: HeapDistribution = HeapDistribution()) -> Relabelled:
+  """The rewards of ``shard``'s rows drawn again (see the module docstring).
+
+  Args:
+    models: the run's N object models (`dexjax.generate.usable_objects`, in the run's order: the shard's
+      ``object_ids`` index them).
+    params: the run's `LabelParams` (`dexjax.generate.label_params`); its ``reward.num_samples`` is M.
+    shard: the shard (`dexjax.data.read_shard`).
+    key: a `jax.random` key; row i draws with ``fold_in(key, i)``. Ignored when ``keys`` is given.
+    keys: optional (N,) keys, one per row (e.g. the first of `generation_reward_keys`).
+    friction_draws: 0: the heap state's friction (as generation); k > 0: the probability is the mean over k
+      frictions drawn from ``heap``'s prior, each with M draws.
+    heap: the heap distribution whose friction prior ``friction_draws`` uses.
+
+  Returns:
+    `Relabelled`, (N,) arrays in the shard's row order.
+  """
+  rows, images = shard.rows, shard.images
+  n = len(rows['gripper'])
+  size = params.policy.actions_per_gripper
+  if keys is None:
+    keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, jnp.arange(n))
+  out = {'reward': np.zeros(n, bool), 'robust_probability': np.zeros(n, np.float32),
+         'failure': np.zeros(n, np.int32)}
+  for j in range(len(images['heap_id'])):
+    ids = np.asarray(images['object_ids'][j])
+    scene = heap_scene(models, ids, ids >= 0, images['object_poses'][j], images['object_friction'][j])
+    for gripper in (PARALLEL_JAW, SUCTION):
+      index = np.nonzero((rows['image_index'] == j) & (rows['gripper'] == gripper))[0]
+      if len(index) == 0:
+        continue
+      if len(index) > size:
+        raise ValueError(f'{shard.path}: image {j} has {len(index)} rows of gripper {gripper}, more than the '
+                         f'run\'s policy.actions_per_gripper = {size}')
+      padded = np.concatenate([index, np.full(size - len(index), index[0])])
+      poses = jnp.asarray(rows['grasp_pose'][padded])
+      record = _draws(keys[padded], poses, scene, params, gripper, friction_draws, heap)
+      out['robust_probability'][index] = record[0][:len(index)]
+      out['failure'][index] = record[1][:len(index)]
+  # The reward's last check, on the (possibly averaged) probability: `heap_reward` orders the checks so.
+  decided = np.isin(out['failure'], (NONE, NOT_ROBUST))
+  out['reward'] = decided & (out['robust_probability'] > params.reward.threshold)
+  out['failure'] = np.where(out['reward'], NONE, np.where(decided, NOT_ROBUST, out['failure'])).astype(np.int32)
+  return Relabelled(**out)
+
+
+def _draws(keys, poses, scene, params, gripper, friction_draws, heap) -> tuple[np.ndarray, np.ndarray]:
+  """(robust probability (A,), failure (A,)) of padded rows, averaged over ``friction_draws`` prior frictions."""
+  if friction_draws == 0:
+    record = _rows_reward_jit(keys, poses, scene, params, gripper=gripper, friction=None)
+    return np.asarray(record.robust_probability), np.asarray(record.failure)
+  probability, failure = [], None
+  for d in range(friction_draws):
+    draw_keys = jax.vmap(lambda k: jax.random.split(jax.random.fold_in(k, d)))(keys)
+    friction = jax.vmap(sample_friction, in_axes=(0, None))(draw_keys[:, 1], heap)
+    record = _rows_reward_jit(draw_keys[:, 0], poses, scene, params, gripper=gripper, friction=friction)
+    probability.append(np.asarray(record.robust_probability))
+    failure = np.asarray(record.failure) if failure is None else failure
+  return np.mean(probability, axis=0).astype(np.float32), failure
+
+
+__all__ = ['Relabelled', 'generation_reward_keys', 'relabel_shard', 'row_grasp']
