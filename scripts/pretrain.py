@@ -30,6 +30,7 @@ import json
 import os
 import sys
 import time
+from typing import Any
 from pathlib import Path
 
 from dexjax.data import list_shards, shard_path
@@ -159,6 +160,28 @@ def _relabelled(shards: list, models, params, seed: int, friction_draws: int = 0
   return {k: np.concatenate([getattr(r, k) for r in parts]) for k in ('robust_probability', 'reward', 'failure')}
 
 
+def _centre_of_mass_distance(shards: list, models) -> Any:
+  """(N,) horizontal distance, metres, from each row's grasp point to its target object's centre of mass (NaN
+  where no object was contacted): the lever arm gravity acts through, which decides most suction grasps."""
+  import numpy as np  # pylint: disable=g-import-not-at-top
+  from dexjax.geometry.transforms import quat_to_matrix  # pylint: disable=g-import-not-at-top
+  out = []
+  for shard in shards:
+    rows, images = shard.rows, shard.images
+    slot, image = rows['target_slot'], rows['image_index']
+    dist = np.full(len(slot), np.nan)
+    for n in np.flatnonzero(slot >= 0):
+      pose = images['object_poses'][image[n], slot[n]]
+      model = models[images['object_ids'][image[n], slot[n]]]
+      com = quat_to_matrix(pose[3:], xp=np) @ np.asarray(model.center_of_mass) + pose[:3]
+      dist[n] = np.linalg.norm(com[:2] - rows['grasp_pose'][n, :2, 3])
+    out.append(dist)
+  return np.concatenate(out)
+
+
+_DISTANCE_BINS_CM = (0, 1, 2, 3, 5, 100)
+
+
 def _best_threshold(probability, decided, labels) -> dict:
   """Balanced accuracy of "decided and probability > t" against ``labels``, at t = 0.5 and at the best t of
   0.05, 0.10, ..., 0.95 (a predictor of the robust probability may pick its threshold)."""
@@ -175,7 +198,9 @@ def _label_ceiling(args) -> dict:
   flips and how well it predicts the first (``second_labelling``); how well a predictor that knew each grasp's
   robust probability (estimated with ``--draws`` draws) scores against the labels (``oracle``), also when it
   does not know the objects' friction (``--friction-draws``: ``oracle_without_friction``); and, with
-  ``--model``, the model's balanced accuracy against the labels and against the many-draw ones."""
+  ``--model``, the model's balanced accuracy against the labels and against the many-draw ones. Rows are also
+  binned by the horizontal distance from the grasp to the target's centre of mass (``by_centre_of_mass_distance``:
+  the share robust with many draws and, with ``--model``, the share the model predicts to succeed)."""
   import numpy as np  # pylint: disable=g-import-not-at-top
   from dexjax.data import GRIPPER_NAMES, read_shard  # pylint: disable=g-import-not-at-top
   from dexjax.generate import label_params  # pylint: disable=g-import-not-at-top
@@ -201,6 +226,7 @@ def _label_ceiling(args) -> dict:
   where = {(i, r): n for n, (i, r) in enumerate((i, r) for i, s in enumerate(shards)
                                                  for r in range(len(s.rows['gripper'])))}
   trained = load_models(args.model, GRIPPER_NAMES) if args.model else {}
+  distance = _centre_of_mass_distance(shards, models)
   out = {'data': os.fspath(data), 'shards': len(shards), 'num_samples': params.reward.num_samples,
          'draws': args.draws, 'friction_draws': args.friction_draws}
   for code, name in enumerate(GRIPPER_NAMES):
@@ -223,6 +249,15 @@ def _label_ceiling(args) -> dict:
       result['model'] = {
           'balanced_accuracy': round(classification_metrics(scores, lab)['balanced_accuracy'], 3),
           'against_many_draws': round(classification_metrics(scores, oracle['reward'][sel])['balanced_accuracy'], 3)}
+    by_distance = {}
+    for lo, hi in zip(_DISTANCE_BINS_CM[:-1], _DISTANCE_BINS_CM[1:]):
+      b = (distance[sel] >= lo / 100) & (distance[sel] < hi / 100)
+      if b.any():
+        cell = {'rows': int(b.sum()), 'robust_with_many_draws': round(float(oracle['reward'][sel][b].mean()), 3)}
+        if 'model' in result:
+          cell['model_predicts_success'] = round(float((scores[b] > 0.5).mean()), 3)
+        by_distance[f'{lo}-{hi} cm'] = cell
+    result['by_centre_of_mass_distance'] = by_distance
     out[name] = result
   return out
 
