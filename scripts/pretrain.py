@@ -149,14 +149,15 @@ def _ship(args) -> dict:
   return {'written': written, 'metrics': scores}
 
 
-def _relabelled(shards: list, models, params, seed: int, friction_draws: int = 0) -> dict:
+def _relabelled(shards: list, models, params, seed: int, friction_draws: int = 0, heap=None) -> dict:
   """Every row of ``shards`` labelled again (`dexjax.generate.relabel_shard`), shard i with ``fold_in(key(seed),
   i)``: concatenated ``robust_probability``, ``reward``, ``failure``."""
   import jax  # pylint: disable=g-import-not-at-top
   import numpy as np  # pylint: disable=g-import-not-at-top
   from dexjax.generate.relabel import relabel_shard  # pylint: disable=g-import-not-at-top
   parts = [relabel_shard(models, params, shard, jax.random.fold_in(jax.random.key(seed), i),
-                         friction_draws=friction_draws) for i, shard in enumerate(shards)]
+                         friction_draws=friction_draws, **({} if heap is None else {'heap': heap}))
+           for i, shard in enumerate(shards)]
   return {k: np.concatenate([getattr(r, k) for r in parts]) for k in ('robust_probability', 'reward', 'failure')}
 
 
@@ -220,7 +221,8 @@ def _label_ceiling(args) -> dict:
   many = params.replace(reward=params.reward.replace(num_samples=args.draws))
   second = _relabelled(shards, models, params, args.seed)
   oracle = _relabelled(shards, models, many, args.seed + 1)
-  blind = _relabelled(shards, models, many, args.seed + 2, args.friction_draws) if args.friction_draws else None
+  blind = (_relabelled(shards, models, many, args.seed + 2, args.friction_draws, config.heap)
+           if args.friction_draws else None)
   col = lambda k: np.concatenate([s.rows[k] for s in shards])
   gripper, labels, failure = col('gripper'), col('reward').astype(bool), col('failure')
   where = {(i, r): n for n, (i, r) in enumerate((i, r) for i, s in enumerate(shards)

@@ -115,7 +115,7 @@ def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.
     keys: optional (N,) keys, one per row (e.g. the first of `generation_reward_keys`).
     friction_draws: 0: the heap state's friction (as generation); k > 0: the probability is the mean over k
       frictions drawn from ``heap``'s prior, each with M draws.
-    heap: the heap distribution whose friction prior ``friction_draws`` uses.
+    heap: the heap distribution whose friction prior ``friction_draws`` uses (the run's ``config.heap``).
 
   Returns:
     `Relabelled`, (N,) arrays in the shard's row order.
@@ -139,9 +139,9 @@ def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.
                          f'run\'s policy.actions_per_gripper = {size}')
       padded = np.concatenate([index, np.full(size - len(index), index[0])])
       poses = jnp.asarray(rows['grasp_pose'][padded])
-      record = _draws(keys[padded], poses, scene, params, gripper, friction_draws, heap)
-      out['robust_probability'][index] = record[0][:len(index)]
-      out['failure'][index] = record[1][:len(index)]
+      probability, failure = _draws(keys[padded], poses, scene, params, gripper, friction_draws, heap)
+      out['robust_probability'][index] = probability[:len(index)]
+      out['failure'][index] = failure[:len(index)]
   # The reward's last check, on the (possibly averaged) probability: `heap_reward` orders the checks so.
   decided = np.isin(out['failure'], (NONE, NOT_ROBUST))
   out['reward'] = decided & (out['robust_probability'] > params.reward.threshold)
