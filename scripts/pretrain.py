@@ -225,8 +225,7 @@ def _label_ceiling(args) -> dict:
            if args.friction_draws else None)
   col = lambda k: np.concatenate([s.rows[k] for s in shards])
   gripper, labels, failure = col('gripper'), col('reward').astype(bool), col('failure')
-  where = {(i, r): n for n, (i, r) in enumerate((i, r) for i, s in enumerate(shards)
-                                                 for r in range(len(s.rows['gripper'])))}
+  first_row = np.cumsum([0] + [len(s.rows['gripper']) for s in shards])  # each shard's first row among all
   trained = load_models(args.model, GRIPPER_NAMES) if args.model else {}
   distance = _centre_of_mass_distance(shards, models)
   out = {'data': os.fspath(data), 'shards': len(shards), 'num_samples': params.reward.num_samples,
@@ -245,9 +244,8 @@ def _label_ceiling(args) -> dict:
       result['oracle_without_friction'] = _best_threshold(blind['robust_probability'][sel], decided, lab)
     if name in trained:
       rows = predict_rows(trained[name], data, TrainConfig(), 'all')
-      index = np.array([where[(int(i), int(r))] for i, r in zip(rows['shard_index'], rows['row_index'])])
       # Scores back in the shard order: the rows of this gripper, sorted by their position among all rows.
-      scores = rows['scores'][np.argsort(index)]
+      scores = rows['scores'][np.argsort(first_row[rows['shard_index']] + rows['row_index'])]
       result['model'] = {
           'balanced_accuracy': round(classification_metrics(scores, lab)['balanced_accuracy'], 3),
           'against_many_draws': round(classification_metrics(scores, oracle['reward'][sel])['balanced_accuracy'], 3)}

@@ -251,18 +251,26 @@ def load_generate_config(path: str | os.PathLike[str] | None = None, *,
 _SPEED_ONLY = {'chunk_steps': 25, 'rollout_wave': 256}
 
 
+def content_fields(record: Mapping[str, Any]) -> dict[str, Any]:
+  """The fields of a config record (``as_dict(config)``, or a run's ``config.json`` ``config``) that determine a
+  shard's content, JSON-ready: without the seed and the settling threads, with the settling chunks and waves at
+  fixed values (`_SPEED_ONLY`), and without the sleep fields when ``settle.sleep`` is off (or absent): the
+  physics of datasets made before sleeping objects (2026-12-04), which therefore keep their fingerprint."""
+  data = plain_json(record)
+  data.pop('seed', None)
+  settle = data['settle']
+  settle.pop('nthread', None)
+  settle.update(_SPEED_ONLY)
+  if not settle.get('sleep', False):
+    settle.pop('sleep', None)
+    settle.pop('sleep_tolerance', None)
+  return data
+
+
 def fingerprint(config: GenerateConfig) -> str:
-  """`dexjax.data.config_fingerprint` of everything that determines a shard's content (not the seed): the config,
-  the shard format and the labelling version (`dexjax.generate.labels.LABEL_VERSION`). The settling threads,
-  chunks and waves are left out (`_SPEED_ONLY`); so are the sleep fields when ``settle.sleep`` is off, the physics
-  of datasets made before sleeping objects (2026-12-04), which therefore keep their fingerprint."""
-  data = as_dict(config)
-  data.pop('seed')
-  data['settle'].pop('nthread')
-  data['settle'].update(_SPEED_ONLY)
-  if not config.settle.sleep:  # the physics of every dataset made before the field existed: the same fingerprint
-    data['settle'].pop('sleep')
-    data['settle'].pop('sleep_tolerance')
+  """`dexjax.data.config_fingerprint` of everything that determines a shard's content (`content_fields`: not the
+  seed), the shard format and the labelling version (`dexjax.generate.labels.LABEL_VERSION`)."""
+  data = content_fields(as_dict(config))
   data['versions'] = {'shard_format': FORMAT_VERSION, 'labels': LABEL_VERSION}
-  return config_fingerprint(plain_json(data))
+  return config_fingerprint(data)
 

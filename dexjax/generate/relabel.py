@@ -86,7 +86,7 @@ def generation_reward_keys(seed: int, shard_index: int, shard: Shard, num_action
 
   A row is an action that existed, in order; when an image kept all ``num_actions`` actions of a gripper, row a
   of it is action a and its key is known. Where some actions did not exist, which action a row was is not
-  stored: those rows get placeholder keys and ``known`` False.
+  stored: row a gets action a's key, which may belong to another action, and ``known`` is False.
   """
   rows = shard.rows
   keys, known = [], []

@@ -24,10 +24,10 @@ from pathlib import Path
 from typing import Any
 
 from dexjax.cli import OutputError, check_output_dir, is_dexjax_png
-from dexjax.config import ConfigError, as_dict, plain_json, validate_generate_config
+from dexjax.config import ConfigError, as_dict, validate_generate_config
 from dexjax.data.manifest import open_manifest, pending_shards
 from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
-from dexjax.generate.config import _SPEED_ONLY, GenerateConfig, fingerprint, load_generate_config
+from dexjax.generate.config import GenerateConfig, content_fields, fingerprint, load_generate_config
 from dexjax.geometry.cache import atomic_write_text
 from dexjax.generate.parallel import run_tasks
 from dexjax.generate.pipeline import (close_process_generators, generate_shard, process_generator,
@@ -105,8 +105,7 @@ def _flat(data: Any, prefix: str = '') -> dict[str, Any]:
 def load_run_config(data_dir: str | os.PathLike[str], path: str | os.PathLike[str] | None = None) -> GenerateConfig:
   """The `GenerateConfig` a finished run was made with: the config file ``path`` (default: the defaults) with the
   run's object sources and seed (``--objects`` and ``--seed`` may have set them), checked field by field against
-  the run's ``config.json``. Fields the record lacks (older versions did not write them) and the settling fields
-  that change speed only are not compared.
+  the run's ``config.json``: every field of `content_fields` the record holds (older versions wrote fewer).
 
   Raises:
     FileNotFoundError: ``data_dir`` has no run config record.
@@ -117,10 +116,9 @@ def load_run_config(data_dir: str | os.PathLike[str], path: str | os.PathLike[st
     raise FileNotFoundError(f'{record_path}: no run config record (python -m dexjax.generate writes one)')
   record = json.loads(record_path.read_text(encoding='utf-8'))['config']
   config = load_generate_config(path, objects=list(record['objects']['sources']), seed=int(record['seed']))
-  ours = _flat(plain_json(as_dict(config)))
-  speed_only = {f'settle.{k}' for k in (*_SPEED_ONLY, 'nthread')}
-  for field, value in _flat(plain_json(record)).items():
-    if field not in speed_only and field in ours and ours[field] != value:
+  ours = _flat(content_fields(as_dict(config)))
+  for field, value in _flat(content_fields(record)).items():
+    if field in ours and ours[field] != value:
       raise ConfigError(os.fspath(record_path), field,
                         f'the run was made with {value!r}, the config ({path or "defaults"}) gives {ours[field]!r}')
   return config

@@ -20,8 +20,8 @@ from dexjax.quality.smooth import (ParallelJawMargins, Smoothing, SuctionMargins
 from dexjax.quality.grasp_optimization import AscentResult, AscentSettings, move_grasp, optimize_grasp
 
 __all__ = [
-    "GraspEvaluation", "evaluate_grasps", "split_over_devices", "FAILURE_REASONS", "Conditions", "GraspOutcome", "QualityConfig",
-    "external_wrench", "parallel_jaw_quality", "suction_quality", "REWARD_SAMPLES", "REWARD_THRESHOLD",
+    "GraspEvaluation", "evaluate_grasps", "split_over_devices", "FAILURE_REASONS", "Conditions", "GraspOutcome",
+    "QualityConfig", "external_wrench", "parallel_jaw_quality", "suction_quality", "REWARD_SAMPLES", "REWARD_THRESHOLD",
     "SUPERVISOR_SAMPLES", "SUPERVISOR_THRESHOLD", "Perturbations", "RobustQuality", "nominal_conditions",
     "parallel_jaw_perturbations", "perturb_parallel_jaw_grasp", "perturb_suction_grasp",
     "robust_parallel_jaw_quality", "robust_suction_quality", "sample_conditions", "suction_perturbations", "with_known_friction", "with_known_mass",
