@@ -19,13 +19,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from dexjax.cli import OutputError
 from dexjax.config import ConfigError
 from dexjax.data import (GRIPPER_NAMES, IMAGE_SCHEMA, ROW_SCHEMA, iterate_rows, list_shards, load_manifest, read_shard,
                          shard_path)
 from dexjax.generate.__main__ import main
 from dexjax.generate.config import GenerateConfig, config_from_dict, fingerprint, load_generate_config
 from dexjax.generate.pipeline import ShardGenerator, label_params, usable_objects
-from dexjax.generate.relabel import generation_reward_keys, relabel_shard
+from dexjax.generate.relabel import generation_reward_keys, relabel_dataset, relabel_shard
 from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions
 from dexjax.generate.run import generate_dataset, load_run_config, num_shards
 from dexjax.quality import REWARD_FAILURES
@@ -510,14 +511,67 @@ def test_relabelling_with_new_draws_changes_only_what_the_draws_decide(run):
   assert np.any(first.robust_probability[decided] != second.robust_probability[decided])
 
 
+def _config_file(tmp_path: pathlib.Path) -> pathlib.Path:
+  """The module's config as a file, as ``python -m dexjax.generate --config small.yaml --objects ... --seed 3``
+  would have been given it."""
+  path = tmp_path / 'small.yaml'
+  path.write_text(yaml.safe_dump({k: v for k, v in SMALL.items() if k not in ('seed', 'objects')}
+                                 | {'objects': {'grid_size': 32}}))
+  return path
+
+
+def test_relabelled_run_is_the_run_generated_with_more_draws(run, tmp_path, capsys):
+  """``--relabel SRC --num-samples 20`` writes SRC's shards with every label drawn again with M = 20 from the
+  generator's keys: for every row whose key is known that is exactly what a generation run with
+  ``reward.num_samples: 20`` writes (its first shard generated here), and everything else in the shards (images,
+  grasps, heaps) is SRC's. The new run's config says M = 20; a rerun skips every shard; relabelling into SRC
+  itself is refused."""
+  config, out, cache, _ = run
+  path = _config_file(tmp_path)
+  relabelled = tmp_path / 'm20'
+  command = ['--relabel', str(out), '--num-samples', '20', '--config', str(path), '--out', str(relabelled),
+             '--cache-dir', str(cache), '--json']
+  assert main(command) == 0
+  summary = json.loads(capsys.readouterr().out)
+  assert summary['shards'] == {'total': 2, 'skipped': 0, 'written': 2, 'missing': 0}
+  assert set(summary['flipped']) == set(GRIPPER_NAMES)
+  assert json.loads((relabelled / 'config.json').read_text())['config']['reward']['num_samples'] == 20
+  with pytest.raises(ConfigError, match=r'reward\.num_samples: the run was made with 20'):
+    load_run_config(relabelled, path)  # its config is the file's with M = 20
+  more = dataclasses.replace(config, reward=config.reward.replace(num_samples=20))
+  generated = tmp_path / 'generated'
+  generate_dataset(more, generated, 2, cache_dir=str(cache), progress=False, preview=False)
+  params = label_params(more)
+  for index in range(2):
+    source, got = read_shard(shard_path(out, index)), read_shard(shard_path(relabelled, index))
+    assert got.meta['config_fingerprint'] == fingerprint(more)
+    for name in IMAGE_SCHEMA:
+      np.testing.assert_array_equal(got.images[name], source.images[name], err_msg=name)
+    for name in set(ROW_SCHEMA) - {'reward', 'robust_probability', 'failure'}:
+      np.testing.assert_array_equal(got.rows[name], source.rows[name], err_msg=name)
+    np.testing.assert_allclose(got.rows['robust_probability'] * 20, np.round(got.rows['robust_probability'] * 20),
+                               atol=1e-4)
+    if index == 0:
+      want = read_shard(shard_path(generated, 0))
+      _, known = generation_reward_keys(config.seed, 0, source, params.policy.actions_per_gripper)
+      assert known.sum() >= 16
+      for name in ROW_SCHEMA:
+        np.testing.assert_array_equal(got.rows[name][known], want.rows[name][known], err_msg=name)
+  assert main(command) == 0
+  assert json.loads(capsys.readouterr().out)['shards'] == {'total': 2, 'skipped': 2, 'written': 0, 'missing': 0}
+  with pytest.raises(OutputError, match='is the run being relabelled'):
+    relabel_dataset(out, out, 20, config_path=path, cache_dir=str(cache), progress=False, overwrite=True)
+  assert main(['--relabel', str(out), '--out', str(tmp_path / 'x'), '--config', str(path)]) == 2
+  assert '--num-samples' in capsys.readouterr().err
+  assert main(['--relabel', str(out), '--num-samples', '20', '--out', str(tmp_path / 'x'), '--seed', '1']) == 2
+  assert '--seed: not used with --relabel' in capsys.readouterr().err
+
+
 def test_run_config_is_read_back_and_checked_against_the_record(run, tmp_path):
   """`load_run_config` rebuilds the run's config from its config file plus the record's objects and seed, and
   names the field and the run's value when the file does not match the run; no record: FileNotFoundError."""
   config, out, _, _ = run
-  path = tmp_path / 'small.yaml'
-  # As `python -m dexjax.generate --config small.yaml --objects ... --seed 3` would have been given it.
-  path.write_text(yaml.safe_dump({k: v for k, v in SMALL.items() if k not in ('seed', 'objects')}
-                                 | {'objects': {'grid_size': 32}}))
+  path = _config_file(tmp_path)
   again = load_run_config(out, path)
   assert fingerprint(again) == fingerprint(config) and again.seed == config.seed
   assert again.objects.sources == config.objects.sources
@@ -537,9 +591,7 @@ def test_label_ceiling_script_reports_both_grippers(run, tmp_path, capsys):
                                                 pathlib.Path(__file__).parents[1] / 'scripts' / 'pretrain.py')
   script = importlib.util.module_from_spec(spec)
   spec.loader.exec_module(script)
-  path = tmp_path / 'small.yaml'
-  path.write_text(yaml.safe_dump({k: v for k, v in SMALL.items() if k not in ('seed', 'objects')}
-                                 | {'objects': {'grid_size': 32}}))
+  path = _config_file(tmp_path)
   assert script.main(['ceiling', '--data', str(out), '--config', str(path), '--draws', '10']) == 0
   report = json.loads(capsys.readouterr().out)
   rows = {k: np.concatenate([read_shard(p).rows[k] for p in list_shards(out)]) for k in ('gripper', 'reward')}

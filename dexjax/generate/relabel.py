@@ -14,21 +14,39 @@ settled poses and per-object friction), with keys of the caller's choosing and a
 * with ``friction_draws`` > 0 the target's friction is drawn from the heap distribution's prior instead of taken
   from the heap state, which a depth image does not show: the probability then averages over frictions.
 
+`relabel_dataset` writes a whole run again with M draws per label (``python -m dexjax.generate --relabel SRC
+--num-samples M --out DIR``): the same shards, with each row's reward drawn from the generator's own key and M
+draws, so the new run is the one ``python -m dexjax.generate`` would have written with ``reward.num_samples: M``
+(save the rows of images that lost actions, whose keys are not stored: they get other, independent keys).
+Training on labels of many draws is how the shipped suction model learns the robust probability rather than the
+luck of 10 draws (docs/models.md).
+
 Work is per image and gripper, padded to the run's actions per gripper, so one compilation serves a dataset.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import os
+import time
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from dexjax.data.shards import Shard
+from dexjax.cli import OutputError
+from dexjax.config import validate_generate_config
+from dexjax.data.manifest import finish_shard, load_manifest, open_manifest, pending_shards
+from dexjax.data.shards import GRIPPER_NAMES, Shard, read_shard, shard_path
+from dexjax.generate.config import fingerprint
 from dexjax.generate.labels import PARALLEL_JAW, SUCTION, LabelParams, reward_keys
-from dexjax.generate.pipeline import image_label_key
+from dexjax.generate.pipeline import image_label_key, label_params, usable_objects
+from dexjax.generate.report import RowStats
+from dexjax.generate.run import check_run_dir, load_run_config, write_run_config
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.quality.heap_reward import (NONE, NOT_ROBUST, HeapScene, RewardRecord, heap_scene, parallel_jaw_heap_reward,
                                        suction_heap_reward)
@@ -164,4 +182,80 @@ def _draws(keys, poses, scene, params, gripper, friction_draws, heap) -> tuple[n
   return np.mean(probability, axis=0).astype(np.float32), failure
 
 
-__all__ = ['Relabelled', 'generation_reward_keys', 'relabel_shard', 'row_grasp']
+def relabel_dataset(data_dir: str | os.PathLike[str], out_dir: str | os.PathLike[str], num_samples: int, *,
+                    config_path: str | os.PathLike[str] | None = None, cache_dir: str | None = None,
+                    progress: bool = True, overwrite: bool = False) -> dict[str, Any]:
+  """Writes the finished shards of run ``data_dir`` to ``out_dir`` with every reward drawn again with M =
+  ``num_samples`` (see the module docstring); resumable like a generation run (rerun to continue).
+
+  Args:
+    data_dir: a finished or partial run of ``python -m dexjax.generate`` (its shards, manifest, ``config.json``).
+    out_dir: the new run's directory (`dexjax.generate.check_run_dir` rules): shards, manifest and a
+      ``config.json`` whose ``reward.num_samples`` is M. Shard i of it is shard i of ``data_dir`` relabelled.
+    num_samples: M, Monte-Carlo draws per label (the seed's is 10).
+    config_path: the config file the run was made with (default: the defaults; `load_run_config` checks it).
+    cache_dir: object cache (as for generation).
+    progress: a progress bar on stderr.
+    overwrite: as for `dexjax.generate.generate_dataset`.
+
+  Returns:
+    ``rows``, per-gripper counts (`dexjax.generate.RowStats`) of the rows written by this call, ``flipped`` per
+    gripper (the share of those rows whose reward changed), ``shards`` (``total``, ``skipped``, ``written``,
+    ``missing``: the source's unfinished shards), ``seconds`` and ``rows_per_s``.
+
+  Raises:
+    FileNotFoundError: ``data_dir`` holds no run; `ConfigError`: ``config_path`` is not the run's.
+    OutputError: ``out_dir`` is ``data_dir`` or may not be written; ValueError: ``num_samples`` < 1.
+  """
+  if num_samples < 1:
+    raise ValueError(f'--num-samples: expected an integer >= 1, got {num_samples}')
+  source = Path(data_dir)
+  out = check_run_dir(out_dir, overwrite=overwrite)
+  if out.resolve() == source.resolve():
+    raise OutputError('--out', out, 'is the run being relabelled; expected a new directory')
+  config = load_run_config(source, config_path)
+  new = dataclasses.replace(config, reward=config.reward.replace(num_samples=num_samples))
+  validate_generate_config(new, os.fspath(config_path or 'the default config'))
+  manifest = load_manifest(source)
+  if manifest is None:
+    raise FileNotFoundError(f'{source}: no manifest.json (not a run of python -m dexjax.generate)')
+  total, key = manifest.num_shards, fingerprint(new)
+  open_manifest(out, key, new.seed, total)
+  write_run_config(out, new)
+  todo = pending_shards(out, total, key, seed=new.seed)
+  ready = [i for i in todo if i in manifest.shards]
+  models = [p.model for p in usable_objects(new, cache_dir)[0]] if ready else []
+  params = label_params(new)
+  stats, changed = RowStats(), {}
+  clock = time.perf_counter()
+  for index in _progress(ready, progress):
+    shard = read_shard(shard_path(source, index))
+    keys, _ = generation_reward_keys(config.seed, index, shard, params.policy.actions_per_gripper)
+    new_labels = relabel_shard(models, params, shard, jax.random.key(0), keys=keys)
+    rows = dict(shard.rows, reward=new_labels.reward.astype(np.int8), failure=new_labels.failure.astype(np.int8),
+                robust_probability=new_labels.robust_probability)
+    finish_shard(out, index, shard.images, rows, {'config_fingerprint': key, 'seed': new.seed,
+                                                  'relabelled_from': os.fspath(source.resolve())})
+    stats.add(rows)
+    for code in np.unique(rows['gripper']):
+      sel = rows['gripper'] == code
+      flips = changed.setdefault(int(code), [0, 0])
+      flips[0] += int((rows['reward'][sel] != shard.rows['reward'][sel]).sum())
+      flips[1] += int(sel.sum())
+  seconds = time.perf_counter() - clock
+  summary = stats.to_dict(seconds)
+  summary['flipped'] = {GRIPPER_NAMES[code]: round(f / n, 4) for code, (f, n) in sorted(changed.items())}
+  summary['shards'] = {'total': total, 'skipped': total - len(todo), 'written': len(ready),
+                       'missing': len(todo) - len(ready)}
+  summary['out_dir'] = os.fspath(out)
+  return summary
+
+
+def _progress(items: list[int], show: bool):
+  if not show:
+    return items
+  from tqdm.auto import tqdm  # pylint: disable=g-import-not-at-top
+  return tqdm(items, desc='relabel', unit='shard')
+
+
+__all__ = ['Relabelled', 'generation_reward_keys', 'relabel_dataset', 'relabel_shard', 'row_grasp']

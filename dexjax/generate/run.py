@@ -124,7 +124,8 @@ def load_run_config(data_dir: str | os.PathLike[str], path: str | os.PathLike[st
   return config
 
 
-def _write_config(out_dir: Path, config: GenerateConfig) -> None:
+def write_run_config(out_dir: Path, config: GenerateConfig) -> None:
+  """Writes the run's config record ``out_dir/config.json`` (fingerprint and resolved config), atomically."""
   data = {'fingerprint': fingerprint(config), 'config': as_dict(config)}
   atomic_write_text(out_dir / CONFIG_NAME, json.dumps(data, indent=1, sort_keys=True, default=str))
 
@@ -219,7 +220,7 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
   if new_run:
     prepare()
   open_manifest(out, fingerprint(config), config.seed, total)
-  _write_config(out, config)
+  write_run_config(out, config)
   todo = pending_shards(out, total, fingerprint(config), assignment, seed=config.seed, verify=verify)
   mine = len(range(assignment[0], total, assignment[1]))
   if todo and not new_run:
@@ -274,4 +275,4 @@ def _preview(out: Path, total: int, assignment: tuple[int, int]) -> str | None:
 
 
 __all__ = ['CONFIG_NAME', 'PREVIEW_NAME', 'check_run_dir', 'generate_dataset', 'load_run_config', 'num_shards',
-           'warm_caches']
+           'warm_caches', 'write_run_config']
