@@ -248,8 +248,31 @@ def test_soft_targets_are_the_robust_probability_where_robustness_decided():
   from dexjax.train import train_config_from_dict
   from dexjax.config import ConfigError
   assert train_config_from_dict({'loop': {'target': 'robust_probability'}}, 'x.yaml').loop.target == 'robust_probability'
+  with pytest.raises(ConfigError, match="x.yaml: loop.label_draws: expected an integer >= 1"):
+    train_config_from_dict({'loop': {'target': 'label_probability', 'label_draws': 0}}, 'x.yaml').validate('x.yaml')
   with pytest.raises(ConfigError, match="x.yaml: loop.target: expected one of"):
     train_config_from_dict({'loop': {'target': 'soft'}}, 'x.yaml').validate('x.yaml')
+
+
+def test_label_probability_is_the_binomial_tail_and_soft_targets_are_balanced_in_expectation():
+  """`label_probability`: P(a reward of M draws is positive) = P(Binomial(M, p) > threshold M), against SciPy.
+  Soft targets are class-balanced as the expected class-balanced loss over their labels: weight w and target t
+  with w CE(t, q) = s w+ (-log q) + (1 - s) w- (-log(1 - q)) for every prediction q."""
+  from scipy.stats import binom
+  from dexjax.train import LoopConfig, label_probability
+  from dexjax.train.batches import _balanced_soft_targets
+  p = np.linspace(0.0, 1.0, 41)
+  for draws, threshold in ((10, 0.5), (7, 0.5), (20, 0.3)):
+    np.testing.assert_allclose(label_probability(p, draws, threshold), binom.sf(np.floor(threshold * draws), draws, p),
+                               atol=1e-6)
+  assert label_probability(np.array([0.5]), 10)[0] == pytest.approx(386 / 1024)  # 6..10 of 10: (210+120+45+10+1)/2^10
+  s = np.array([0.0, 0.3, 0.55, 1.0], np.float32)
+  for loop in (LoopConfig(target='robust_probability'), LoopConfig(target='label_probability', label_draws=10)):
+    target, weight = _balanced_soft_targets(s, loop, 4.0, 0.6)
+    want = s if loop.target == 'robust_probability' else binom.sf(5, 10, s)
+    for q in (0.1, 0.5, 0.9):
+      got = weight * -(target * np.log(q) + (1 - target) * np.log(1 - q))
+      np.testing.assert_allclose(got, -(want * 4.0 * np.log(q) + (1 - want) * 0.6 * np.log(1 - q)), rtol=1e-5)
 
 
 def test_a_step_on_soft_targets_lowers_the_soft_loss():

@@ -8,7 +8,7 @@ from dexjax.train.batches import GripperStats, dataset_stats, eval_batches, trai
 from dexjax.train.checkpoint import Checkpointer
 from dexjax.train.config import (BEST_METRICS, CLASS_BALANCE, CheckpointConfig, LoopConfig, QuickstartData,
                                  SplitConfig, TrainConfig, config_to_dict, load_train_config, train_config_from_dict)
-from dexjax.train.data import gripper_examples, pose_vectors, soft_labels, symmetrize
+from dexjax.train.data import gripper_examples, label_probability, pose_vectors, soft_labels, symmetrize
 from dexjax.train.distributed import data_mesh, replicate, shard_batch
 from dexjax.train.validation import evaluate_model, predict_rows, sample_examples
 from dexjax.train.loop import Interrupted, check_trainable, final_state_params, sgd_step, train_gripper
@@ -24,7 +24,7 @@ __all__ = [
   'bootstrap_intervals', 'predict_rows',
   'check_run_dir', 'check_trainable', 'classification_metrics', 'config_to_dict', 'create_state', 'cross_entropy', 'data_mesh', 'dataset_stats',
   'eval_batches', 'eval_logits', 'evaluate_model', 'final_state_params', 'gripper_examples', 'learning_rate_schedule',
-  'soft_labels',
+  'label_probability', 'soft_labels',
   'load_train_config', 'make_optimizer', 'plot_curves', 'pose_vectors', 'quickstart_dataset', 'read_records',
   'replicate', 'sample_examples', 'sgd_step', 'shard_batch', 'symmetrize', 'train_batches', 'train_config_from_dict', 'train_gripper',
   'train_run', 'train_step',

@@ -23,7 +23,7 @@ from dexjax.data.loader import iterate_rows
 from dexjax.data.shards import GRIPPER_NAMES
 from dexjax.models.normalization import Normalization, fit_normalization
 from dexjax.train.config import TrainConfig
-from dexjax.train.data import gripper_examples
+from dexjax.train.data import gripper_examples, label_probability
 
 _LOADER_BATCH = 256  # rows per loader batch (both grippers); only the grouping of reads, not the result
 _SOURCE_FIELDS = ('shard_index', 'row_index', 'image_index', 'target_slot')  # where an evaluated row came from
@@ -133,8 +133,22 @@ def train_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str
     if index < skip:
       continue
     examples = gripper_examples(batch, gripper, config.model.crop_size, config.crop_window)
-    examples['weights'] = np.where(examples['labels'] == 1, w_pos, w_neg).astype(np.float32)
+    if loop.target == 'label':
+      examples['weights'] = np.where(examples['labels'] == 1, w_pos, w_neg).astype(np.float32)
+    else:
+      examples['soft_labels'], examples['weights'] = _balanced_soft_targets(examples['soft_labels'], loop, w_pos,
+                                                                            w_neg)
     yield examples
+
+
+def _balanced_soft_targets(soft: np.ndarray, loop, w_pos: float, w_neg: float) -> tuple[np.ndarray, np.ndarray]:
+  """(targets, weights) (B,) of soft targets (the robust probabilities, `dexjax.train.soft_labels`) for
+  ``loop.target``: the class-balanced loss's expectation over the target, weight ``s w+ + (1 - s) w-`` towards
+  ``s w+ / weight`` (`LoopConfig`)."""
+  if loop.target == 'label_probability':
+    soft = label_probability(soft, loop.label_draws, loop.label_threshold)
+  weights = soft * w_pos + (1.0 - soft) * w_neg
+  return (soft * w_pos / weights).astype(np.float32), weights.astype(np.float32)
 
 
 def eval_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str,

@@ -21,7 +21,7 @@ from dexjax.train.step import OptimizerConfig
 CLASS_BALANCE = ('none', 'weight', 'undersample')
 BEST_METRICS = ('val_balanced_accuracy', 'val_average_precision', 'val_accuracy', 'val_loss')
 _MODEL_TUPLES = ('conv_filters', 'conv_kernels', 'pool_after')
-TARGETS = ('label', 'robust_probability')
+TARGETS = ('label', 'robust_probability', 'label_probability')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,8 +37,14 @@ class LoopConfig:
     normalization_rows: training rows (at most) the input statistics are fitted on.
     shuffle_buffer: rows mixed by the streaming loader (`dexjax.data.iterate_rows`).
     eval_batch_size: examples per validation forward pass.
-    target: ``'label'`` (Dex-Net 4.0: the reward, 0 or 1) or ``'robust_probability'`` (soft targets: the robust
-      probability of the M draws where robustness decided the reward, else 0; `dexjax.train.soft_labels`).
+    target: ``'label'`` (Dex-Net 4.0: the reward, 0 or 1), ``'robust_probability'`` (soft targets: the robust
+      probability of the M draws where robustness decided the reward, else 0; `dexjax.train.soft_labels`) or
+      ``'label_probability'`` (soft targets: the probability that a label of ``label_draws`` draws is positive,
+      given that robust probability; `dexjax.train.label_probability`: labels of many draws, e.g. a run
+      relabelled with M = 100, teach the M = 10 label without its draws' noise). Soft targets are class-balanced
+      as their expected loss: a row weighs ``s w+ + (1 - s) w-`` towards the target ``s w+ / (s w+ + (1 - s) w-)``.
+    label_draws: with ``'label_probability'``: the draws M of the label to predict (the seed's: 10).
+    label_threshold: with ``'label_probability'``: the reward's threshold on the M-draw probability (0.5).
   """
 
   epochs: int = 12
@@ -49,6 +55,8 @@ class LoopConfig:
   shuffle_buffer: int = 10_000
   eval_batch_size: int = 256
   target: str = 'label'
+  label_draws: int = 10
+  label_threshold: float = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,6 +144,8 @@ class TrainConfig:
               ('loop.normalization_rows', self.loop.normalization_rows >= 1, 'an integer >= 1'),
               ('loop.class_balance', self.loop.class_balance in CLASS_BALANCE, f'one of {CLASS_BALANCE}'),
               ('loop.target', self.loop.target in TARGETS, f'one of {TARGETS}'),
+              ('loop.label_draws', self.loop.label_draws >= 1, 'an integer >= 1'),
+              ('loop.label_threshold', 0.0 <= self.loop.label_threshold < 1.0, 'a probability in [0, 1)'),
               ('split.by', self.split.by in ('heap', 'object'), "'heap' or 'object'"),
               ('split.val_fraction', 0.0 < self.split.val_fraction < 1.0, 'a fraction in (0, 1)'),
               ('checkpoint.every_steps', self.checkpoint.every_steps >= 1, 'an integer >= 1'),

@@ -96,6 +96,16 @@ def soft_labels(rows: Mapping[str, np.ndarray]) -> np.ndarray:
   return np.where(decided, np.asarray(rows['robust_probability'], np.float32), 0.0).astype(np.float32)
 
 
+def label_probability(probability: np.ndarray, draws: int, threshold: float = 0.5) -> np.ndarray:
+  """(M,) float32: the probability that a reward of ``draws`` Monte-Carlo draws is positive (the share of
+  successful draws strictly above ``threshold``) for grasps of robust probability ``probability`` (M,): the upper
+  tail of Binomial(draws, p), sum over k > threshold * draws of C(draws, k) p^k (1 - p)^(draws - k)."""
+  p = np.clip(np.asarray(probability, np.float64), 0.0, 1.0)[..., None]
+  k = np.arange(math.floor(threshold * draws) + 1, draws + 1)
+  comb = np.array([math.comb(draws, int(i)) for i in k], np.float64)
+  return np.sum(comb * p**k * (1.0 - p)**(draws - k), axis=-1).astype(np.float32)
+
+
 def gripper_examples(batch: Mapping[str, np.ndarray], gripper: str, crop_size: int = 96,
                      crop_window: int | None = None) -> dict[str, np.ndarray]:
   """The examples of ``gripper`` in a loader batch (``depth``: per-row images, stacked or an object array, see

@@ -152,7 +152,7 @@ def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, confi
         step_key = jax.random.fold_in(key, int(state.step) + 1)
         state, metrics = sgd_step(state, shard_batch(batch, mesh), norm, step_key, augment=config.loop.symmetrize,
                                   suction=suction, subtract_depth=config.model.subtracts_grasp_depth,
-                                  soft=config.loop.target == 'robust_probability')
+                                  soft=config.loop.target != 'label')
         progress_data['batch'] += 1
         progress_data['loss_sum'] += float(metrics['loss'])
         progress_data['accuracy_sum'] += float(metrics['accuracy'])
