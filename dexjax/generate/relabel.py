@@ -18,8 +18,8 @@ settled poses and per-object friction), with keys of the caller's choosing and a
 --num-samples M --out DIR``): the same shards, with each row's reward drawn from the generator's own key and M
 draws, so the new run is the one ``python -m dexjax.generate`` would have written with ``reward.num_samples: M``
 (save the rows of images that lost actions, whose keys are not stored: they get other, independent keys).
-Training on labels of many draws is how the shipped suction model learns the robust probability rather than the
-luck of 10 draws (docs/models.md).
+The shipped suction model learns from such a run (M = 100) the probability that a 10-draw label is positive,
+without the noise of each row's own 10 draws (`loop.target: label_probability`, docs/models.md).
 
 Work is per image and gripper, padded to the run's actions per gripper, so one compilation serves a dataset.
 """

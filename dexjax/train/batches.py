@@ -22,7 +22,7 @@ import numpy as np
 from dexjax.data.loader import iterate_rows
 from dexjax.data.shards import GRIPPER_NAMES
 from dexjax.models.normalization import Normalization, fit_normalization
-from dexjax.train.config import TrainConfig
+from dexjax.train.config import LoopConfig, TrainConfig
 from dexjax.train.data import gripper_examples, label_probability
 
 _LOADER_BATCH = 256  # rows per loader batch (both grippers); only the grouping of reads, not the result
@@ -141,7 +141,7 @@ def train_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str
     yield examples
 
 
-def _balanced_soft_targets(soft: np.ndarray, loop, w_pos: float, w_neg: float) -> tuple[np.ndarray, np.ndarray]:
+def _balanced_soft_targets(soft: np.ndarray, loop: LoopConfig, w_pos: float, w_neg: float) -> tuple[np.ndarray, np.ndarray]:
   """(targets, weights) (B,) of soft targets (the robust probabilities, `dexjax.train.soft_labels`) for
   ``loop.target``: the class-balanced loss's expectation over the target, weight ``s w+ + (1 - s) w-`` towards
   ``s w+ / weight`` (`LoopConfig`)."""
