@@ -149,14 +149,15 @@ def _ship(args) -> dict:
   return {'written': written, 'metrics': scores}
 
 
-def _relabelled(shards: list, models, params, seed: int, friction_draws: int = 0, heap=None) -> dict:
-  """Every row of ``shards`` labelled again (`dexjax.generate.relabel_shard`), shard i with ``fold_in(key(seed),
-  i)``: concatenated ``robust_probability``, ``reward``, ``failure``."""
+def _relabelled(shards: list, models, params, seed: int, heap, friction_draws: int = 0) -> dict:
+  """Every row of ``shards`` labelled again (`dexjax.generate.relabel_shard`; ``heap``: the run's heap
+  distribution, whose friction prior ``friction_draws`` uses), shard i with ``fold_in(key(seed), i)``: concatenated
+  ``robust_probability``, ``reward``, ``failure``."""
   import jax  # pylint: disable=g-import-not-at-top
   import numpy as np  # pylint: disable=g-import-not-at-top
   from dexjax.generate.relabel import relabel_shard  # pylint: disable=g-import-not-at-top
   parts = [relabel_shard(models, params, shard, jax.random.fold_in(jax.random.key(seed), i),
-                         friction_draws=friction_draws, **({} if heap is None else {'heap': heap}))
+                         friction_draws=friction_draws, heap=heap)
            for i, shard in enumerate(shards)]
   return {k: np.concatenate([getattr(r, k) for r in parts]) for k in ('robust_probability', 'reward', 'failure')}
 
@@ -219,13 +220,14 @@ def _label_ceiling(args) -> dict:
   models = [p.model for p in usable_objects(config)[0]]
   params = label_params(config)
   many = params.replace(reward=params.reward.replace(num_samples=args.draws))
-  second = _relabelled(shards, models, params, args.seed)
-  oracle = _relabelled(shards, models, many, args.seed + 1)
-  blind = (_relabelled(shards, models, many, args.seed + 2, args.friction_draws, config.heap)
+  second = _relabelled(shards, models, params, args.seed, config.heap)
+  oracle = _relabelled(shards, models, many, args.seed + 1, config.heap)
+  blind = (_relabelled(shards, models, many, args.seed + 2, config.heap, args.friction_draws)
            if args.friction_draws else None)
   col = lambda k: np.concatenate([s.rows[k] for s in shards])
   gripper, labels, failure = col('gripper'), col('reward').astype(bool), col('failure')
-  first_row = np.cumsum([0] + [len(s.rows['gripper']) for s in shards])  # each shard's first row among all
+  # Each shard's first row among all, by the shard index its rows carry (`predict_rows`' ``shard_index``).
+  first_row = dict(zip((s.meta['index'] for s in shards), np.cumsum([0] + [len(s.rows['gripper']) for s in shards])))
   trained = load_models(args.model, GRIPPER_NAMES) if args.model else {}
   distance = _centre_of_mass_distance(shards, models)
   out = {'data': os.fspath(data), 'shards': len(shards), 'num_samples': params.reward.num_samples,
@@ -244,8 +246,11 @@ def _label_ceiling(args) -> dict:
       result['oracle_without_friction'] = _best_threshold(blind['robust_probability'][sel], decided, lab)
     if name in trained:
       rows = predict_rows(trained[name], data, TrainConfig(), 'all')
-      # Scores back in the shard order: the rows of this gripper, sorted by their position among all rows.
-      scores = rows['scores'][np.argsort(first_row[rows['shard_index']] + rows['row_index'])]
+      # Scores back in the shard order: this gripper's rows of the chosen shards (``--shards``), sorted by their
+      # position among all rows.
+      mine = np.isin(rows['shard_index'], list(first_row))
+      position = np.array([first_row[i] for i in rows['shard_index'][mine]]) + rows['row_index'][mine]
+      scores = rows['scores'][mine][np.argsort(position)]
       result['model'] = {
           'balanced_accuracy': round(classification_metrics(scores, lab)['balanced_accuracy'], 3),
           'against_many_draws': round(classification_metrics(scores, oracle['reward'][sel])['balanced_accuracy'], 3)}

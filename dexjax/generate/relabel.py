@@ -119,7 +119,7 @@ def generation_reward_keys(seed: int, shard_index: int, shard: Shard, num_action
   return jnp.concatenate(keys)[order], np.concatenate(known)[order]
 
 
-def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.Array, *,
+def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.Array | None, *,
                   keys: jax.Array | None = None, friction_draws: int = 0,
                   heap: HeapDistribution = HeapDistribution()) -> Relabelled:
   """The rewards of ``shard``'s rows drawn again (see the module docstring).
@@ -129,7 +129,7 @@ def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.
       ``object_ids`` index them).
     params: the run's `LabelParams` (`dexjax.generate.label_params`); its ``reward.num_samples`` is M.
     shard: the shard (`dexjax.data.read_shard`).
-    key: a `jax.random` key; row i draws with ``fold_in(key, i)``. Ignored when ``keys`` is given.
+    key: a `jax.random` key; row i draws with ``fold_in(key, i)``. Ignored (may be None) when ``keys`` is given.
     keys: optional (N,) keys, one per row (e.g. the first of `generation_reward_keys`).
     friction_draws: 0: the heap state's friction (as generation); k > 0: the probability is the mean over k
       frictions drawn from ``heap``'s prior, each with M draws.
@@ -231,7 +231,7 @@ def relabel_dataset(data_dir: str | os.PathLike[str], out_dir: str | os.PathLike
   for index in _progress(ready, progress):
     shard = read_shard(shard_path(source, index))
     keys, _ = generation_reward_keys(config.seed, index, shard, params.policy.actions_per_gripper)
-    new_labels = relabel_shard(models, params, shard, jax.random.key(0), keys=keys)
+    new_labels = relabel_shard(models, params, shard, None, keys=keys)
     rows = dict(shard.rows, reward=new_labels.reward.astype(np.int8), failure=new_labels.failure.astype(np.int8),
                 robust_probability=new_labels.robust_probability)
     finish_shard(out, index, shard.images, rows, {'config_fingerprint': key, 'seed': new.seed,

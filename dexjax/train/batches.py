@@ -141,7 +141,8 @@ def train_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str
     yield examples
 
 
-def _balanced_soft_targets(soft: np.ndarray, loop: LoopConfig, w_pos: float, w_neg: float) -> tuple[np.ndarray, np.ndarray]:
+def _balanced_soft_targets(soft: np.ndarray, loop: LoopConfig, w_pos: float,
+                           w_neg: float) -> tuple[np.ndarray, np.ndarray]:
   """(targets, weights) (B,) of soft targets (the robust probabilities, `dexjax.train.soft_labels`) for
   ``loop.target``: the class-balanced loss's expectation over the target, weight ``s w+ + (1 - s) w-`` towards
   ``s w+ / weight`` (`LoopConfig`)."""
