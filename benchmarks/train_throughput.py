@@ -12,7 +12,11 @@ For the Dex-Net 4.0 network (96 x 96 crops, 631,410 parameters) and the quick-st
   ``analytic_forward_flops``: 2 x multiply-adds of the convolutions and dense layers, counted by hand as a check.
 * ``compile_s``: compiling the training step.
 * ``matmul_gflops``: this machine's measured float32 matmul rate (2048 x 2048, median), the roofline used for
-  ``*_bound`` = matmul_gflops / flops per example, and ``*_fraction_of_bound``.
+  ``*_bound`` = matmul_gflops / useful flops per example, and ``*_fraction_of_bound``.
+* ``plain_convolutions``: the in-run baseline, the same step and forward pass on XLA's own convolutions
+  (``GQCNN(width_block=1)``, as dexjax computed them before width blocking and as flax's ``nn.Conv`` does). Its
+  XLA FLOP counts are the useful work that sets both bounds (the width-blocked network's own counts include its
+  multiply-adds by zero); ``speedup_over_plain`` is the ratio of the rates.
 
 With ``--data DIR`` (a generated dataset) it also times the input pipeline alone (`dexjax.train.train_batches`:
 shard reading, shuffling, grasp crops) in examples/s.
@@ -33,7 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dexjax.models import GQCNNConfig, Normalization, init_gqcnn, num_parameters, predict
+from dexjax.models import (GQCNN, GQCNNConfig, Normalization, init_gqcnn, num_parameters, predict,
+                           success_probability)
+from dexjax.models.width_blocked import WIDTH_BLOCK
 from dexjax.models.saved import GraspQualityModel
 from dexjax.train import OptimizerConfig, TrainConfig, create_state, make_optimizer, sgd_step
 import sys
@@ -85,7 +91,8 @@ def _flops(compiled, batch: int) -> float | None:
   return float(flops) / batch if flops else None
 
 
-def measure(config: GQCNNConfig, steps: int, repeats: int, gflops: float) -> dict:
+def _rates(config: GQCNNConfig, width_block: int, steps: int, repeats: int) -> dict:
+  """Training and inference rates of one way of computing the convolutions, with XLA's FLOP counts."""
   rng = np.random.default_rng(0)
   crops = jnp.asarray(rng.normal(0.7, 0.02, (TRAIN_BATCH, config.crop_size, config.crop_size, 1)), jnp.float32)
   batch = {'crops': crops, 'poses': jnp.asarray(rng.normal(0.7, 0.02, (TRAIN_BATCH, 1)), jnp.float32),
@@ -93,6 +100,7 @@ def measure(config: GQCNNConfig, steps: int, repeats: int, gflops: float) -> dic
            'weights': jnp.ones(TRAIN_BATCH, jnp.float32)}
   norm = Normalization(jnp.float32(0.7), jnp.float32(0.02), jnp.float32([0.7]), jnp.float32([0.02]))
   state = create_state(jax.random.key(0), config, make_optimizer(OptimizerConfig(), 1000))
+  state = state.replace(apply_fn=GQCNN(config, width_block=width_block).apply)
   start = time.perf_counter()
   compiled = sgd_step.lower(state, batch, norm, jax.random.key(1), augment=True, suction=False).compile()
   compile_s = time.perf_counter() - start
@@ -113,25 +121,48 @@ def measure(config: GQCNNConfig, steps: int, repeats: int, gflops: float) -> dic
                             gripper='parallel_jaw', crop_window=config.crop_size)
   icrops = jnp.asarray(rng.normal(0.7, 0.02, (INFER_BATCH, config.crop_size, config.crop_size, 1)), jnp.float32)
   iposes = jnp.full((INFER_BATCH, 1), 0.7, jnp.float32)
-  forward_flops = _flops(predict.lower(model, icrops, iposes).compile(), INFER_BATCH)
-  predict(model, icrops, iposes).block_until_ready()
+  if width_block == WIDTH_BLOCK:
+    infer_fn = predict  # the library's path
+  else:  # the same computation (normalise, network, softmax) with the baseline's convolutions
+    net = GQCNN(config, width_block=width_block)
+    infer_fn = jax.jit(lambda m, c, q: success_probability(
+        net.apply({'params': m.params}, *m.normalization.apply(c, q, m.config.subtracts_grasp_depth))))
+  forward_flops = _flops(infer_fn.lower(model, icrops, iposes).compile(), INFER_BATCH)
+  infer_fn(model, icrops, iposes).block_until_ready()
   infer_passes = max(1, steps // 4)
 
   def infer():
     for _ in range(infer_passes):
-      out = predict(model, icrops, iposes)
+      out = infer_fn(model, icrops, iposes)
     out.block_until_ready()
 
   infer_rate = _median_rate(infer, infer_passes * INFER_BATCH, repeats)
-  bound = lambda flops: gflops * 1e9 / flops if flops else None
-  frac = lambda rate, flops: rate / bound(flops) if flops else None
-  return {'parameters': num_parameters(model.params), 'crop_size': config.crop_size, 'compile_s': compile_s,
-          'train_examples_per_s': train_rate, 'inference_crops_per_s': infer_rate,
-          'train_flops_per_example': step_flops, 'forward_flops_per_example': forward_flops,
-          'analytic_forward_flops': analytic_forward_flops(config),
-          'train_bound_examples_per_s': bound(step_flops), 'inference_bound_crops_per_s': bound(forward_flops),
-          'train_fraction_of_bound': frac(train_rate, step_flops),
-          'inference_fraction_of_bound': frac(infer_rate, forward_flops)}
+  return {'compile_s': compile_s, 'train_examples_per_s': train_rate, 'inference_crops_per_s': infer_rate,
+          'train_flops_per_example': step_flops, 'forward_flops_per_example': forward_flops}
+
+
+def measure(config: GQCNNConfig, steps: int, repeats: int, gflops: float) -> dict:
+  """The library's width-blocked network and, in the same run, the same network on XLA's plain convolutions.
+
+  The FLOP bound is set by the plain network's XLA FLOP counts (the useful work: blocking adds multiply-adds by
+  zero, which XLA counts), so both fractions are of the same work.
+  """
+  plain = _rates(config, 1, steps, repeats)
+  blocked = _rates(config, WIDTH_BLOCK, steps, repeats)
+  train_bound = gflops * 1e9 / plain['train_flops_per_example']
+  infer_bound = gflops * 1e9 / plain['forward_flops_per_example']
+  out = {'parameters': num_parameters(init_gqcnn(jax.random.key(2), config)), 'crop_size': config.crop_size,
+         'width_block': WIDTH_BLOCK, **blocked,
+         'analytic_forward_flops': analytic_forward_flops(config),
+         'train_bound_examples_per_s': train_bound, 'inference_bound_crops_per_s': infer_bound,
+         'train_fraction_of_bound': blocked['train_examples_per_s'] / train_bound,
+         'inference_fraction_of_bound': blocked['inference_crops_per_s'] / infer_bound,
+         'plain_convolutions': {**plain,
+                                'train_fraction_of_bound': plain['train_examples_per_s'] / train_bound,
+                                'inference_fraction_of_bound': plain['inference_crops_per_s'] / infer_bound}}
+  out['speedup_over_plain'] = {'train': blocked['train_examples_per_s'] / plain['train_examples_per_s'],
+                               'inference': blocked['inference_crops_per_s'] / plain['inference_crops_per_s']}
+  return out
 
 
 def pipeline_rate(data: str, batches: int) -> dict:

@@ -10,6 +10,9 @@ sigma = sqrt(2 / fan_in) (the merge layer's two kernels and bias share fan_in = 
 the final bias, which is zero.
 
 Inputs are normalised crops (B, S, S, 1) and normalised poses (B, pose_dim); see `dexjax.models.Normalization`.
+
+The convolutions are computed width-blocked (`dexjax.models.width_blocked`): the parameters and, up to float
+rounding, the outputs are those of ``flax.linen.Conv``, at 1.6-2x its speed on a CPU.
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ import math
 import jax
 import jax.numpy as jnp
 from flax import linen as nn
+
+from dexjax.models.width_blocked import WIDTH_BLOCK, conv_valid
 
 PARALLEL_JAW_POSE_DIM = 1  # gripper depth
 SUCTION_POSE_DIM = 2       # gripper depth, approach angle
@@ -104,9 +109,25 @@ def _he_truncated(fan_in: int):
   return lambda key, shape, dtype=jnp.float32: sigma * jax.random.truncated_normal(key, -2.0, 2.0, shape, dtype)
 
 
-def _conv(features: int, kernel: int, in_channels: int, name: str) -> nn.Conv:
-  init = _he_truncated(kernel * kernel * in_channels)
-  return nn.Conv(features, (kernel, kernel), padding='VALID', kernel_init=init, bias_init=init, name=name)
+class _Conv(nn.Module):
+  """A VALID, stride-1 convolution with bias, (B, H, W, C) -> (B, H - k + 1, W - k + 1, features).
+
+  Its parameters (``kernel`` (k, k, C, features), ``bias``) and their initial values are those of
+  ``nn.Conv(features, (k, k), padding='VALID')`` with the spec's initializer; it is computed width-blocked
+  (`dexjax.models.width_blocked.conv_valid`), which gives the same result faster on a CPU.
+  """
+
+  features: int
+  kernel_size: int
+  width_block: int = WIDTH_BLOCK
+
+  @nn.compact
+  def __call__(self, x: jax.Array) -> jax.Array:
+    k = self.kernel_size
+    init = _he_truncated(k * k * x.shape[-1])
+    kernel = self.param('kernel', init, (k, k, x.shape[-1], self.features), jnp.float32)
+    bias = self.param('bias', init, (self.features,), jnp.float32)
+    return conv_valid(x, kernel, self.width_block) + bias
 
 
 def _dense(features: int, fan_in: int, name: str, use_bias: bool = True, zero_bias: bool = False) -> nn.Dense:
@@ -120,30 +141,38 @@ def _pool(x: jax.Array) -> jax.Array:
 
 
 class ImageStream(nn.Module):
-  """Convolutions and pools of a GQ-CNN: (B, S, S, 1) -> (B, F, F, C) features."""
+  """Convolutions and pools of a GQ-CNN: (B, S, S, 1) -> (B, F, F, C) features.
+
+  ``width_block``: how the convolutions are computed (`dexjax.models.width_blocked.conv_valid`'s factor; 1 is
+  XLA's plain convolution). It changes neither the parameters nor, beyond float rounding, the result.
+  """
 
   config: GQCNNConfig
+  width_block: int = WIDTH_BLOCK
 
   @nn.compact
   def __call__(self, image: jax.Array) -> jax.Array:
-    x, channels = image, image.shape[-1]
+    x = image
     for index, (filters, kernel) in enumerate(zip(self.config.conv_filters, self.config.conv_kernels)):
-      x = nn.relu(_conv(filters, kernel, channels, f'conv{index}')(x))
+      x = nn.relu(_Conv(filters, kernel, self.width_block, name=f'conv{index}')(x))
       if index in self.config.pool_after:
         x = _pool(x)
-      channels = filters
     return x
 
 
 class GQCNN(nn.Module):
-  """The GQ-CNN: logits (B, 2) [fail, success] of normalised crops (B, S, S, 1) and poses (B, pose_dim)."""
+  """The GQ-CNN: logits (B, 2) [fail, success] of normalised crops (B, S, S, 1) and poses (B, pose_dim).
+
+  ``width_block``: as `ImageStream`'s (computation only; the parameters are the same for every value).
+  """
 
   config: GQCNNConfig = GQCNNConfig()
+  width_block: int = WIDTH_BLOCK
 
   @nn.compact
   def __call__(self, image: jax.Array, pose: jax.Array, train: bool = False) -> jax.Array:
     c = self.config
-    features = ImageStream(c, name='image_stream')(image)
+    features = ImageStream(c, self.width_block, name='image_stream')(image)
     flat = features.reshape(features.shape[0], -1)
     h = nn.relu(_dense(c.fc_size, flat.shape[-1], 'fc3')(flat))
     h = nn.Dropout(c.dropout, deterministic=not train)(h)

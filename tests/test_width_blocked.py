@@ -1,0 +1,113 @@
+"""Width-blocked convolutions (`dexjax.models.width_blocked`): the same cross-correlation as SciPy's and XLA's
+plain convolution for any width, kernel and factor, the same gradients, and a GQ-CNN whose parameters and outputs
+do not depend on how its convolutions are computed."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import linen as nn
+from scipy.signal import correlate
+
+from dexjax.models import GQCNN, GQCNNConfig, ImageStream, SUCTION_POSE_DIM, init_gqcnn
+from dexjax.models.gqcnn import _he_truncated  # the spec's initializer, as GQCNN's layers use it
+from dexjax.models.width_blocked import blocked_kernel, conv_valid
+
+
+def _scipy_conv(images: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+  """Reference: VALID cross-correlation, one (image, input channel, output channel) at a time, in float64."""
+  batch, _, _, cin = images.shape
+  out = [[sum(correlate(images[n, :, :, c].astype(np.float64), kernel[:, :, c, o].astype(np.float64), 'valid')
+              for c in range(cin)) for o in range(kernel.shape[-1])] for n in range(batch)]
+  return np.asarray(out).transpose(0, 2, 3, 1)
+
+
+@pytest.mark.parametrize('height, width, kh, kw, cin, cout, factor', [
+    (12, 12, 5, 5, 1, 3, 2),    # even width, odd kernel: no padding
+    (11, 13, 3, 3, 2, 4, 2),    # odd width: padded on the right, extra columns dropped
+    (10, 9, 4, 4, 3, 2, 2),     # even kernel
+    (9, 17, 3, 5, 2, 2, 3),     # a factor that divides nothing here
+    (8, 16, 9, 9, 1, 2, 4),     # kernel wider than a block several times over
+    (7, 7, 3, 3, 2, 2, 1),      # factor 1: XLA's own convolution
+])
+def test_conv_valid_is_scipys_cross_correlation(height, width, kh, kw, cin, cout, factor):
+  rng = np.random.default_rng(height * width + factor)
+  kh = min(kh, height)
+  images = rng.normal(size=(2, height, width, cin)).astype(np.float32)
+  kernel = rng.normal(size=(kh, kw, cin, cout)).astype(np.float32)
+  out = np.asarray(conv_valid(jnp.asarray(images), jnp.asarray(kernel), factor))
+  assert out.shape == (2, height - kh + 1, width - kw + 1, cout)
+  np.testing.assert_allclose(out, _scipy_conv(images, kernel), rtol=1e-5, atol=1e-4)
+
+
+def test_blocked_kernel_places_each_tap_once_per_output_phase():
+  """Every (output phase b, input phase q, cell V) holds w[:, f V + q - b] where that column exists, else zeros."""
+  kernel = jnp.arange(1, 1 + 2 * 5 * 1 * 1, dtype=jnp.float32).reshape(2, 5, 1, 1)
+  blocked = np.asarray(blocked_kernel(kernel, 2))  # (2, 3, 2 (q), 2 (b))
+  assert blocked.shape == (2, 3, 2, 2)
+  for v in range(3):
+    for q in range(2):
+      for b in range(2):
+        tap = 2 * v + q - b
+        expected = kernel[:, tap, 0, 0] if 0 <= tap < 5 else np.zeros(2)
+        np.testing.assert_array_equal(blocked[:, v, q, b], expected)
+  # Each output phase sees every kernel column exactly once.
+  assert np.count_nonzero(blocked[..., 0]) == np.count_nonzero(blocked[..., 1]) == 10
+
+
+def test_gradients_match_the_plain_convolution():
+  rng = np.random.default_rng(0)
+  images = jnp.asarray(rng.normal(size=(2, 10, 11, 3)), jnp.float32)
+  kernel = jnp.asarray(rng.normal(size=(3, 3, 3, 4)), jnp.float32)
+  cotangent = jnp.asarray(rng.normal(size=(2, 8, 9, 4)), jnp.float32)
+  loss = lambda x, w, f: jnp.sum(conv_valid(x, w, f) * cotangent)
+  plain = jax.grad(loss, argnums=(0, 1))(images, kernel, 1)
+  blocked = jax.grad(loss, argnums=(0, 1))(images, kernel, 2)
+  for a, b in zip(plain, blocked):
+    np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-4)
+
+
+class _FlaxConvStream(nn.Module):
+  """The image stream as written before width blocking: flax's nn.Conv (the parameters' reference layout)."""
+
+  config: GQCNNConfig
+
+  @nn.compact
+  def __call__(self, x):
+    for index, (filters, k) in enumerate(zip(self.config.conv_filters, self.config.conv_kernels)):
+      init = _he_truncated(k * k * x.shape[-1])
+      x = nn.relu(nn.Conv(filters, (k, k), padding='VALID', kernel_init=init, bias_init=init, name=f'conv{index}')(x))
+      if index in self.config.pool_after:
+        x = nn.max_pool(x, (2, 2), strides=(2, 2), padding='SAME')
+    return x
+
+
+class _Wrapper(nn.Module):
+  """`_FlaxConvStream` at the path GQCNN gives its image stream, so that its parameters get the same keys."""
+
+  config: GQCNNConfig
+
+  @nn.compact
+  def __call__(self, x):
+    return _FlaxConvStream(self.config, name='image_stream')(x)
+
+
+@pytest.mark.parametrize('config', [GQCNNConfig.small(pose_dim=SUCTION_POSE_DIM),
+                                    GQCNNConfig(crop_size=46, conv_kernels=(9, 5, 5, 5))],
+                         ids=['small', 'dexnet4-layers'])
+def test_gqcnn_is_independent_of_the_width_block(config):
+  """Same parameters (tree and initial values) as nn.Conv's, the same features as nn.Conv's, and the same logits computed plainly
+  (factor 1) and blocked (2)."""
+  params = init_gqcnn(jax.random.key(4), config)
+  crops = jax.random.normal(jax.random.key(5), (3, config.crop_size, config.crop_size, 1))
+  # nn.Conv's parameters under the same name and key: the same tree and the same initial values.
+  reference_params = _Wrapper(config).init(jax.random.key(4), crops)['params']['image_stream']
+  jax.tree.map(np.testing.assert_array_equal, reference_params, params['image_stream'])
+  features = _FlaxConvStream(config).apply({'params': params['image_stream']}, crops)
+  poses = jnp.ones((3, config.pose_dim))
+  logits = {f: GQCNN(config, width_block=f).apply({'params': params}, crops, poses) for f in (1, 2)}
+  np.testing.assert_allclose(np.asarray(logits[2]), np.asarray(logits[1]), rtol=1e-5, atol=1e-5)
+  blocked_features = ImageStream(config).apply({'params': params['image_stream']}, crops)
+  np.testing.assert_allclose(np.asarray(blocked_features), np.asarray(features), rtol=1e-5, atol=1e-5)
