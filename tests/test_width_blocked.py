@@ -98,7 +98,7 @@ class _Wrapper(nn.Module):
                                     GQCNNConfig(crop_size=46, conv_kernels=(9, 5, 5, 5))],
                          ids=['small', 'dexnet4-layers'])
 def test_gqcnn_is_independent_of_the_width_block(config):
-  """Same parameters (tree and initial values) as nn.Conv's, the same features as nn.Conv's, and the same logits computed plainly
+  """Same parameters (tree and initial values) and features as nn.Conv's, and the same logits computed plainly
   (factor 1) and blocked (2)."""
   params = init_gqcnn(jax.random.key(4), config)
   crops = jax.random.normal(jax.random.key(5), (3, config.crop_size, config.crop_size, 1))

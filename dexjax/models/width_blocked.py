@@ -1,10 +1,10 @@
-"""Stride-1 VALID convolutions computed on width-blocked images: the same result, fewer, wider channels' worth of
-waste removed from XLA's CPU convolution.
+"""Stride-1 VALID convolutions computed on width-blocked images: the same result as XLA's plain convolution, with
+twice the channels per product, which XLA's CPU convolution runs faster.
 
 A GQ-CNN's convolutions have few channels (1 or 16 in, 16 out), and XLA's CPU convolution is slow at such narrow
 matrix products: on this project's 2-core machine the Dex-Net 4.0 network's first layer (9 x 9, 1 -> 16) ran at
-13 GFLOP/s and its 16 -> 16 layers at 50-60, against a 100-120 GFLOP/s float32 matmul per core. Blocking the
-width by a factor f makes the same convolution f times wider on both sides:
+11 % of the float32 matmul rate and its 16 -> 16 layers at 38-41 %. Blocking the width by a factor f makes the
+same convolution f times wider on both sides:
 
 * the image (B, H, W, C) is read as (B, H, W / f, f C): pixel column f J + q, channel c becomes cell column J,
   channel (q, c). In row-major NHWC this is a free reshape, not a copy;
@@ -13,10 +13,10 @@ width by a factor f makes the same convolution f times wider on both sides:
 * the output cell (i, J), channel (b, o) is the output pixel (i, f J + b), channel o; reshaping back is free too.
 
 Each output block reads K' f >= k input columns, so the product does (K' f / k) times the multiply-adds (1.2 for
-k = 5, f = 2; 1.33 for k = 3), but at twice the channels XLA runs it 1.6-3 times faster (measured:
-``benchmarks/train_throughput.py``, README "GQ-CNN training"). Widths that f does not divide are padded on the
-right with zeros and the extra output columns dropped, so any image size and kernel work. The parameters are the
-plain kernel's; gradients flow through the (linear) kernel rearrangement.
+k = 5, f = 2; 1.33 for k = 3), but at twice the channels XLA runs every layer faster, and the whole network's
+inference 1.6 times faster (``benchmarks/train_throughput.py``, README "GQ-CNN training"). Widths that f does
+not divide are padded on the right with zeros and the extra output columns dropped, so any image size and kernel
+work. The parameters are the plain kernel's; gradients flow through the (linear) kernel rearrangement.
 """
 
 from __future__ import annotations
