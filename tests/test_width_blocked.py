@@ -42,6 +42,11 @@ def test_conv_valid_is_scipys_cross_correlation(height, width, kh, kw, cin, cout
   np.testing.assert_allclose(out, _scipy_conv(images, kernel), rtol=1e-5, atol=1e-4)
 
 
+def test_a_bad_factor_names_the_field():
+  with pytest.raises(ValueError, match='width_block: expected an integer >= 1, got 0'):
+    conv_valid(jnp.zeros((1, 4, 4, 1)), jnp.zeros((3, 3, 1, 1)), 0)
+
+
 def test_blocked_kernel_places_each_tap_once_per_output_phase():
   """Every (output phase b, input phase q, cell V) holds w[:, f V + q - b] where that column exists, else zeros."""
   kernel = jnp.arange(1, 1 + 2 * 5 * 1 * 1, dtype=jnp.float32).reshape(2, 5, 1, 1)
