@@ -416,9 +416,10 @@ def test_generated_shards_train_both_gqcnns_and_score_every_row(run, tmp_path):
 
 
 def test_labels_match_the_rows_recorded_before_the_throughput_work(run):
-  """The small run's rows equal, bit for bit, those dexjax 07484d8 made for the same config and seed, before the
-  labelling, rendering and settling were made faster (issue 18: grids read in place, empty heap slots skipped, no
-  shadow map, the settling loop's NumPy work; SMALL keeps the physics of then: ``settle.sleep`` off).
+  """The small run's rows equal (bit for bit but for float32 geometry, below) those dexjax 07484d8 made for the
+  same config and seed, before the labelling, rendering and settling were made faster (issue 18: grids read in
+  place, empty heap slots skipped, no shadow map, the settling loop's NumPy work; SMALL keeps the physics of then:
+  ``settle.sleep`` off).
   Recorded with ``scripts/record_generate_reference.py``; a render backend other than the recording's draws other
   depth images, so the comparison then needs that backend."""
   reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_07484d8.npz')
@@ -434,7 +435,13 @@ def test_labels_match_the_rows_recorded_before_the_throughput_work(run):
   assert len(fields) == 11
   for field in fields:
     got = np.concatenate([s.rows[field] for s in shards])
-    np.testing.assert_array_equal(got, reference[field], err_msg=field)
+    if np.issubdtype(got.dtype, np.floating) and field != 'robust_probability':
+      # Another CPU rounds float32 geometry differently (2026-12-05, a new machine: 22 of 128 approach angles and
+      # 150 grasp-pose entries moved by up to 1.6e-5, 5 axis angles of ~1e-7 rad by 6e-14); the labels (reward,
+      # robust probability, failure), centres, depths and indices stayed exact, and are compared exactly.
+      np.testing.assert_allclose(got, reference[field], rtol=0, atol=1e-4, err_msg=field)
+    else:
+      np.testing.assert_array_equal(got, reference[field], err_msg=field)
 
 
 def test_ray_workers_write_the_same_shards_as_the_serial_run(run, tmp_path):
