@@ -7,7 +7,8 @@ For the Dex-Net 4.0 network (96 x 96 crops, 631,410 parameters) and the quick-st
 * ``train_examples_per_s``: the jitted training step of `dexjax.train` (per-example symmetry augmentation,
   normalisation, forward, backward, the Dex-Net 4.0 optax update) on batches of 64 resident crops; median over
   ``--repeats`` runs of ``--steps`` steps.
-* ``inference_crops_per_s``: jitted p(success) (`dexjax.models.predict`) of batches of 256 crops, median.
+* ``inference_crops_per_s``: jitted p(success) (`dexjax.models.predict`'s computation) of batches of 256 crops,
+  median.
 * ``*_flops_per_example``: XLA's cost analysis of the compiled step / forward pass, divided by the batch size;
   ``analytic_forward_flops``: 2 x multiply-adds of the convolutions and dense layers, counted by hand as a check.
 * ``compile_s``: compiling the training step.
@@ -37,8 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dexjax.models import (GQCNN, GQCNNConfig, Normalization, init_gqcnn, num_parameters, predict,
-                           success_probability)
+from dexjax.models import GQCNN, GQCNNConfig, Normalization, init_gqcnn, num_parameters, success_probability
 from dexjax.models.width_blocked import WIDTH_BLOCK
 from dexjax.models.saved import GraspQualityModel
 from dexjax.train import OptimizerConfig, TrainConfig, create_state, make_optimizer, sgd_step
@@ -121,12 +121,9 @@ def _rates(config: GQCNNConfig, width_block: int, steps: int, repeats: int) -> d
                             gripper='parallel_jaw', crop_window=config.crop_size)
   icrops = jnp.asarray(rng.normal(0.7, 0.02, (INFER_BATCH, config.crop_size, config.crop_size, 1)), jnp.float32)
   iposes = jnp.full((INFER_BATCH, 1), 0.7, jnp.float32)
-  if width_block == WIDTH_BLOCK:
-    infer_fn = predict  # the library's path
-  else:  # the same computation (normalise, network, softmax) with the baseline's convolutions
-    net = GQCNN(config, width_block=width_block)
-    infer_fn = jax.jit(lambda m, c, q: success_probability(
-        net.apply({'params': m.params}, *m.normalization.apply(c, q, m.config.subtracts_grasp_depth))))
+  net = GQCNN(config, width_block=width_block)  # `predict`'s computation (normalise, network, softmax)
+  infer_fn = jax.jit(lambda m, c, q: success_probability(
+      net.apply({'params': m.params}, *m.normalization.apply(c, q, m.config.subtracts_grasp_depth))))
   forward_flops = _flops(infer_fn.lower(model, icrops, iposes).compile(), INFER_BATCH)
   infer_fn(model, icrops, iposes).block_until_ready()
   infer_passes = max(1, steps // 4)
