@@ -123,7 +123,8 @@ def run_notebook(name: str, workdir: pathlib.Path, parameters: dict[str, Any] | 
   cache = jax.config.jax_compilation_cache_dir
   if cache:  # the test session's persistent compilation cache (tests/conftest.py)
     env.setdefault("JAX_COMPILATION_CACHE_DIR", cache)
-    env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
+    env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+                   str(jax.config.jax_persistent_cache_min_compile_time_secs))
   env["MPLBACKEND"] = "module://matplotlib_inline.backend_inline"  # ipykernel's default, whatever this process uses
   client = NotebookClient(nb, timeout=timeout, kernel_name="python3",
                           resources={"metadata": {"path": str(workdir)}})
