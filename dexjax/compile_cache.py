@@ -14,21 +14,24 @@ def persistent_compilation_cache():
   1 s), so a rerun (e.g. a plan on an image of the same size with a network of the same architecture, or a
   benchmark worker's planners and judges) skips most of the compilation. Scoped: JAX's previous cache settings are
   restored afterwards, so a program (or test session) that enters it does not go on writing every later
-  compilation there. Best effort: an unwritable cache only costs the time."""
+  compilation there. A cache the process already has (``jax_compilation_cache_dir``, e.g. from
+  ``JAX_COMPILATION_CACHE_DIR``) is used instead of ``$DEXJAX_CACHE/jax``, and a lower threshold it already has
+  (``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS``) is kept: the test suite sets both, so its CLI runs, Ray workers
+  and subprocesses share one cache of every program. Best effort: an unwritable cache only costs the time."""
   import jax  # pylint: disable=g-import-not-at-top
   from jax.experimental.compilation_cache import compilation_cache  # pylint: disable=g-import-not-at-top
   from dexjax.geometry.cache import default_cache_dir  # pylint: disable=g-import-not-at-top
   names = ('jax_compilation_cache_dir', 'jax_persistent_cache_min_compile_time_secs')
   before = {name: getattr(jax.config, name) for name in names}
   try:
-    directory = Path(default_cache_dir()) / 'jax'
+    directory = Path(before[names[0]] or Path(default_cache_dir()) / 'jax')
     directory.mkdir(parents=True, exist_ok=True)
   except OSError:
     yield
     return
   compilation_cache.reset_cache()
   jax.config.update(names[0], os.fspath(directory))
-  jax.config.update(names[1], 1.0)
+  jax.config.update(names[1], min(1.0, before[names[1]]))
   try:
     yield
   finally:

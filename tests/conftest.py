@@ -19,11 +19,19 @@ def _share_compiled_programs():
   is kept (`MIN_CACHED_COMPILE_S`; the CLIs keep those over 1 s): compiling is most of the suite's time, and most of
   it is small programs. tests/test_policy.py compiled 1,044 programs in 155 s, 1,001 of them under 0.2 s (46 s in
   all); with every program kept, that file ran in 186 s from an empty cache and in 41 s from a full one (2026-12-05).
-  CI starts from an empty ``$DEXJAX_CACHE``, so each program is still compiled once there."""
-  import jax  # pylint: disable=import-outside-toplevel
+  CI starts from an empty ``$DEXJAX_CACHE``, so each program is still compiled once there.
+
+  Both settings are also exported (``JAX_COMPILATION_CACHE_DIR``, ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS``),
+  so child processes use the same cache: CLIs run as subprocesses, generation and benchmark workers (local and
+  Ray) and notebook kernels; `dexjax.compile_cache.persistent_compilation_cache` keeps a cache and a lower
+  threshold the process already has. A test that changes ``$DEXJAX_CACHE`` (objects) keeps this cache."""
   from dexjax.geometry.cache import default_cache_dir  # pylint: disable=import-outside-toplevel
-  jax.config.update("jax_compilation_cache_dir", os.path.join(default_cache_dir(), "jax"))
-  jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_CACHED_COMPILE_S)
+  os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(default_cache_dir(), "jax"))
+  os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(MIN_CACHED_COMPILE_S))
+  import jax  # pylint: disable=import-outside-toplevel
+  jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+  jax.config.update("jax_persistent_cache_min_compile_time_secs",
+                    float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
 
 
 _share_compiled_programs()

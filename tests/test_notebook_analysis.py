@@ -6,7 +6,8 @@ from __future__ import annotations
 def test_analysis_notebook(run_notebook):
   """Filters, top-activating crops and a t-SNE per layer for both grippers, and the notebook's verdict on the seed's
   finding."""
-  small = {"NUM_IMAGES": 16, "NUM_TSNE": 150, "TOP_K": 3}
+  one_per_level = ["procedural:L1/0:1@21", "procedural:L2/0:1@21", "procedural:L3/0:1@21"]
+  small = {"OBJECTS": one_per_level, "NUM_IMAGES": 16, "NUM_TSNE": 150, "TOP_K": 3}
   values = {"layers": "layers", "names": "list(names)", "verdict": "verdict"}
   run = run_notebook("analysis.ipynb", small, values)
   assert run.images() == 6  # (A), (B), (C) for each gripper

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 def test_benchmark_notebook(run_notebook):
   """Both judges on every attempt, the table, the figures and the judges' confusion counts."""
-  small = {"PER_TRIAL": 2, "TRIALS": 1, "MAX_ATTEMPTS": 3, "POLICIES": ["ambidextrous", "random"]}
+  small = {"OBJECTS": ["procedural:L1/0:1@41", "procedural:L2/0:1@41"], "PER_TRIAL": 2, "TRIALS": 1,
+           "MAX_ATTEMPTS": 3, "POLICIES": ["ambidextrous", "random"]}
   values = {"results": "results", "records": "records", "confusion": "confusion", "figures": "sorted(figures)"}
   run = run_notebook("benchmark.ipynb", small, values)
   results, records, confusion = run.values["results"], run.values["records"], run.values["confusion"]

@@ -16,7 +16,7 @@ from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality import (parallel_jaw_perturbations, robust_parallel_jaw_quality, robust_suction_quality,
                             suction_perturbations)
-from dexjax.quality.grasp_optimization import AscentSettings, move_grasp, optimize_grasp
+from dexjax.quality.grasp_optimization import AscentSettings, move_grasp
 from dexjax.quality.grasp_quality import QualityConfig
 from dexjax.quality.robust import sample_attempt
 from dexjax.quality.smooth import (Smoothing, parallel_jaw_margins, smooth_parallel_jaw_quality,
@@ -307,28 +307,8 @@ def test_move_grasp_is_a_rigid_motion_and_the_identity_at_zero():
   assert abs(float(jnp.dot(moved.axis, moved.approach))) < 1e-6
 
 
-@pytest.mark.parametrize("suction", [False, True], ids=["parallel_jaw", "suction"])
-def test_ascent_raises_the_hard_robust_quality_on_an_unseen_object(suction, cache_dir):
-  """From sampled grasps on a procedural object no other test uses, 20 ascent steps raise the hard robust
-  probability (100 independent draws) on average and for more grasps than they lower it."""
-  from dexjax.objects import load_object_model
-  model = load_object_model("procedural:L1/4@23", cache_dir=cache_dir, grid_size=64)
-  if suction:
-    grasps, valid = sample_suction_grasps(jax.random.key(0), model, 64)
-    hard = lambda g: robust_suction_quality(jax.random.key(99), model, g, perturbations=suction_perturbations(100))
-  else:
-    grasps, valid = sample_antipodal_grasps(jax.random.key(0), model, 64)
-    hard = lambda g: robust_parallel_jaw_quality(jax.random.key(99), model, g,
-                                                 perturbations=parallel_jaw_perturbations(100))
-  grasps = _take(grasps, valid, 16)
-  ascend = jax.jit(jax.vmap(functools.partial(optimize_grasp, steps=20), in_axes=(None, None, 0)))
-  result = ascend(jax.random.key(5), model, grasps)
-  score = jax.jit(jax.vmap(lambda g: hard(g).probability))
-  before, after = np.asarray(score(grasps)), np.asarray(score(result.grasp))
-  assert after.mean() > before.mean()
-  assert np.sum(after > before) > np.sum(after < before)
-  shift = np.linalg.norm(np.asarray(result.grasp.center - grasps.center), axis=1)
-  assert np.all(shift <= AscentSettings().max_translation + 0.006)  # trust region (+ the suction re-projection)
+# The ascent on an unseen object (procedural:L1/4@23, 16 starts, 20 steps, judged by 100 independent draws) is
+# tested by running notebooks/gradients.ipynb: tests/test_notebook_gradients.py.
 
 
 def test_the_ascent_guard_keeps_the_start_when_the_last_iterate_is_worse(box):
