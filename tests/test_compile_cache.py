@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import pytest
+from jax.experimental.compilation_cache import compilation_cache
 
 from dexjax.compile_cache import persistent_compilation_cache
 
@@ -13,11 +14,13 @@ _NAMES = ('jax_compilation_cache_dir', 'jax_persistent_cache_min_compile_time_se
 
 @pytest.fixture
 def jax_cache_settings():
-  """Restores the session's cache settings (tests/conftest.py) after the test."""
+  """Restores the session's cache settings (tests/conftest.py) after the test; JAX opens the cache again at the next
+  compilation."""
   before = {name: getattr(jax.config, name) for name in _NAMES}
   yield
   for name, value in before.items():
     jax.config.update(name, value)
+  compilation_cache.reset_cache()
 
 
 def _settings():
