@@ -8,6 +8,12 @@ import os
 from pathlib import Path
 
 
+def default_compilation_cache_dir() -> str:
+  """``$DEXJAX_CACHE/jax``: where `persistent_compilation_cache` keeps programs when the process has no JAX cache."""
+  from dexjax.geometry.cache import default_cache_dir  # pylint: disable=g-import-not-at-top
+  return os.path.join(default_cache_dir(), 'jax')
+
+
 @contextlib.contextmanager
 def persistent_compilation_cache():
   """Keeps what is compiled inside the block in ``$DEXJAX_CACHE/jax`` (JAX's persistent cache; compilations over
@@ -20,11 +26,10 @@ def persistent_compilation_cache():
   and subprocesses share one cache of every program. Best effort: an unwritable cache only costs the time."""
   import jax  # pylint: disable=g-import-not-at-top
   from jax.experimental.compilation_cache import compilation_cache  # pylint: disable=g-import-not-at-top
-  from dexjax.geometry.cache import default_cache_dir  # pylint: disable=g-import-not-at-top
   names = ('jax_compilation_cache_dir', 'jax_persistent_cache_min_compile_time_secs')
   before = {name: getattr(jax.config, name) for name in names}
   try:
-    directory = Path(before[names[0]] or Path(default_cache_dir()) / 'jax')
+    directory = Path(before[names[0]] or default_compilation_cache_dir())
     directory.mkdir(parents=True, exist_ok=True)
   except OSError:
     yield
@@ -40,4 +45,4 @@ def persistent_compilation_cache():
     compilation_cache.reset_cache()
 
 
-__all__ = ['persistent_compilation_cache']
+__all__ = ['default_compilation_cache_dir', 'persistent_compilation_cache']

@@ -25,8 +25,8 @@ def _share_compiled_programs():
   so child processes use the same cache: CLIs run as subprocesses, generation and benchmark workers (local and
   Ray) and notebook kernels; `dexjax.compile_cache.persistent_compilation_cache` keeps a cache and a lower
   threshold the process already has. A test that changes ``$DEXJAX_CACHE`` (objects) keeps this cache."""
-  from dexjax.geometry.cache import default_cache_dir  # pylint: disable=import-outside-toplevel
-  os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(default_cache_dir(), "jax"))
+  from dexjax.compile_cache import default_compilation_cache_dir  # pylint: disable=import-outside-toplevel
+  os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", default_compilation_cache_dir())
   os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(MIN_CACHED_COMPILE_S))
   import jax  # pylint: disable=import-outside-toplevel
   jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])

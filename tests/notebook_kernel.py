@@ -6,7 +6,7 @@
   each override is written as ``NAME = repr(value)`` into a cell inserted right after it, and every overridden
   name must be assigned in the parameter cell (a renamed setting fails instead of silently running full size);
 * every cell runs in order in a fresh ``python3`` kernel started in a temporary working directory, which
-  inherits this process's environment (``DEXJAX_CACHE``, ``XLA_FLAGS``) and JAX's persistent compilation cache;
+  inherits this process's environment (``DEXJAX_CACHE``, ``XLA_FLAGS``, the JAX cache settings conftest exports);
   any cell error fails with nbclient's ``CellExecutionError`` (the cell, the exception and its traceback);
 * a last cell evaluates the test's ``values`` expressions in the kernel and pickles them (JAX arrays as NumPy,
   containers and their order kept) for the test to check.
@@ -112,19 +112,13 @@ def run_notebook(name: str, workdir: pathlib.Path, parameters: dict[str, Any] | 
     values: name -> Python expression evaluated in the kernel after the last cell; must be picklable.
     timeout: seconds allowed per cell.
   """
-  import jax  # pylint: disable=import-outside-toplevel
   import nbformat  # pylint: disable=import-outside-toplevel
   from nbclient import NotebookClient  # pylint: disable=import-outside-toplevel
 
   nb = _with_parameters(nbformat.read(NOTEBOOKS / name, as_version=4), name, dict(parameters or {}))
   out = workdir / "values.pkl"
   nb.cells.append(_probe_cell(dict(values or {}), out))
-  env = dict(os.environ)
-  cache = jax.config.jax_compilation_cache_dir
-  if cache:  # the test session's persistent compilation cache (tests/conftest.py)
-    env.setdefault("JAX_COMPILATION_CACHE_DIR", cache)
-    env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
-                   str(jax.config.jax_persistent_cache_min_compile_time_secs))
+  env = dict(os.environ)  # with the session's JAX cache settings (tests/conftest.py exports them)
   env["MPLBACKEND"] = "module://matplotlib_inline.backend_inline"  # ipykernel's default, whatever this process uses
   client = NotebookClient(nb, timeout=timeout, kernel_name="python3",
                           resources={"metadata": {"path": str(workdir)}})
