@@ -7,17 +7,19 @@ For the Dex-Net 4.0 network (96 x 96 crops, 631,410 parameters) and the quick-st
 * ``train_examples_per_s``: the jitted training step of `dexjax.train` (per-example symmetry augmentation,
   normalisation, forward, backward, the Dex-Net 4.0 optax update) on batches of 64 resident crops; median over
   ``--repeats`` runs of ``--steps`` steps.
-* ``inference_crops_per_s``: jitted p(success) (`dexjax.models.predict`'s computation) of batches of 256 crops,
-  median.
+* ``inference_crops_per_s``: `dexjax.models.predict` (normalise, network in chunks of ``inference_chunk``
+  crops, softmax) on batches of 256 crops, median.
 * ``*_flops_per_example``: XLA's cost analysis of the compiled step / forward pass, divided by the batch size;
   ``analytic_forward_flops``: 2 x multiply-adds of the convolutions and dense layers, counted by hand as a check.
 * ``compile_s``: compiling the training step.
 * ``matmul_gflops``: this machine's measured float32 matmul rate (2048 x 2048, median), the roofline used for
   ``*_bound`` = matmul_gflops / useful flops per example, and ``*_fraction_of_bound``.
-* ``plain_convolutions``: the in-run baseline, the same step and forward pass on XLA's own convolutions
-  (``GQCNN(width_block=1)``, as dexjax computed them before width blocking and as flax's ``nn.Conv`` does). Its
-  XLA FLOP counts are the useful work that sets both bounds (the width-blocked network's own counts include its
-  multiply-adds by zero); ``speedup_over_plain`` is the ratio of the rates.
+* ``plain_flax``: the in-run baseline, the same training step and prediction with the network written plainly
+  in flax's standard layers (``_plain_gqcnn.PlainGQCNN``: ``nn.Conv``, ``nn.max_pool``, the whole batch at once;
+  dexjax's own before width blocking, chunking and its max-pool). Its XLA FLOP counts are the useful work that
+  sets both bounds (the width-blocked network's own counts include its multiply-adds by zero);
+  ``speedup_over_plain`` is the ratio of the rates; ``max_probability_difference`` the largest difference of the
+  two networks' p(success) on the same batch (the run fails above 1e-4).
 
 With ``--data DIR`` (a generated dataset) it also times the input pipeline alone (`dexjax.train.train_batches`:
 shard reading, shuffling, grasp crops) in examples/s.
@@ -38,15 +40,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dexjax.models import GQCNN, GQCNNConfig, Normalization, init_gqcnn, num_parameters, success_probability
-from dexjax.models.width_blocked import WIDTH_BLOCK
-from dexjax.models.saved import GraspQualityModel
+from dexjax.models import (GQCNNConfig, GraspQualityModel, Normalization, init_gqcnn, num_parameters, predict,
+                           success_probability)
+from dexjax.models.chunked import INFERENCE_CHUNK
+from dexjax.models.width_blocked import FILTER_GRADIENT_CHUNK, WIDTH_BLOCK
 from dexjax.train import OptimizerConfig, TrainConfig, create_state, make_optimizer, sgd_step
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from _machine import describe  # noqa: E402
+from _plain_gqcnn import PlainGQCNN  # noqa: E402
 
 TRAIN_BATCH, INFER_BATCH = 64, 256
 
@@ -91,8 +95,8 @@ def _flops(compiled, batch: int) -> float | None:
   return float(flops) / batch if flops else None
 
 
-def _rates(config: GQCNNConfig, width_block: int, steps: int, repeats: int) -> dict:
-  """Training and inference rates of one way of computing the convolutions, with XLA's FLOP counts."""
+def _rates(config: GQCNNConfig, network: str, steps: int, repeats: int) -> dict:
+  """Training and inference rates of the library's network (``'dexjax'``) or the plain one (``'plain'``)."""
   rng = np.random.default_rng(0)
   crops = jnp.asarray(rng.normal(0.7, 0.02, (TRAIN_BATCH, config.crop_size, config.crop_size, 1)), jnp.float32)
   batch = {'crops': crops, 'poses': jnp.asarray(rng.normal(0.7, 0.02, (TRAIN_BATCH, 1)), jnp.float32),
@@ -100,7 +104,8 @@ def _rates(config: GQCNNConfig, width_block: int, steps: int, repeats: int) -> d
            'weights': jnp.ones(TRAIN_BATCH, jnp.float32)}
   norm = Normalization(jnp.float32(0.7), jnp.float32(0.02), jnp.float32([0.7]), jnp.float32([0.02]))
   state = create_state(jax.random.key(0), config, make_optimizer(OptimizerConfig(), 1000))
-  state = state.replace(apply_fn=GQCNN(config, width_block=width_block).apply)
+  if network == 'plain':
+    state = state.replace(apply_fn=PlainGQCNN(config).apply)
   start = time.perf_counter()
   compiled = sgd_step.lower(state, batch, norm, jax.random.key(1), augment=True, suction=False).compile()
   compile_s = time.perf_counter() - start
@@ -121,11 +126,9 @@ def _rates(config: GQCNNConfig, width_block: int, steps: int, repeats: int) -> d
                             gripper='parallel_jaw', crop_window=config.crop_size)
   icrops = jnp.asarray(rng.normal(0.7, 0.02, (INFER_BATCH, config.crop_size, config.crop_size, 1)), jnp.float32)
   iposes = jnp.full((INFER_BATCH, 1), 0.7, jnp.float32)
-  net = GQCNN(config, width_block=width_block)  # `predict`'s computation (normalise, network, softmax)
-  infer_fn = jax.jit(lambda m, c, q: success_probability(
-      net.apply({'params': m.params}, *m.normalization.apply(c, q, m.config.subtracts_grasp_depth))))
+  infer_fn = predict if network == 'dexjax' else _plain_predict
   forward_flops = _flops(infer_fn.lower(model, icrops, iposes).compile(), INFER_BATCH)
-  infer_fn(model, icrops, iposes).block_until_ready()
+  probabilities = infer_fn(model, icrops, iposes).block_until_ready()
   infer_passes = max(1, steps // 4)
 
   def infer():
@@ -135,30 +138,44 @@ def _rates(config: GQCNNConfig, width_block: int, steps: int, repeats: int) -> d
 
   infer_rate = _median_rate(infer, infer_passes * INFER_BATCH, repeats)
   return {'compile_s': compile_s, 'train_examples_per_s': train_rate, 'inference_crops_per_s': infer_rate,
-          'train_flops_per_example': step_flops, 'forward_flops_per_example': forward_flops}
+          'train_flops_per_example': step_flops, 'forward_flops_per_example': forward_flops,
+          '_probabilities': np.asarray(probabilities)}
+
+
+@jax.jit
+def _plain_predict(model: GraspQualityModel, crops: jax.Array, poses: jax.Array) -> jax.Array:
+  """`dexjax.models.predict`'s computation (normalise, network, softmax) on the plain network, whole batch."""
+  crops, poses = model.normalization.apply(crops, poses, model.config.subtracts_grasp_depth)
+  return success_probability(PlainGQCNN(model.config).apply({'params': model.params}, crops, poses))
 
 
 def measure(config: GQCNNConfig, steps: int, repeats: int, gflops: float) -> dict:
-  """The library's width-blocked network and, in the same run, the same network on XLA's plain convolutions.
+  """The library's network and, in the same run, the plain Flax network (`_plain_gqcnn.PlainGQCNN`).
 
-  The FLOP bound is set by the plain network's XLA FLOP counts (the useful work: blocking adds multiply-adds by
-  zero, which XLA counts), so both fractions are of the same work.
+  The FLOP bound is set by the plain network's XLA FLOP counts (the useful work: width blocking adds
+  multiply-adds by zero, which XLA counts), so both fractions are of the same work. ``max_probability_difference``:
+  the largest difference between the two networks' p(success) on the same inference batch and parameters.
   """
-  plain = _rates(config, 1, steps, repeats)
-  blocked = _rates(config, WIDTH_BLOCK, steps, repeats)
+  plain = _rates(config, 'plain', steps, repeats)
+  library = _rates(config, 'dexjax', steps, repeats)
+  difference = float(np.max(np.abs(plain.pop('_probabilities') - library.pop('_probabilities'))))
   train_bound = gflops * 1e9 / plain['train_flops_per_example']
   infer_bound = gflops * 1e9 / plain['forward_flops_per_example']
   out = {'parameters': num_parameters(init_gqcnn(jax.random.key(2), config)), 'crop_size': config.crop_size,
-         'width_block': WIDTH_BLOCK, **blocked,
+         'width_block': WIDTH_BLOCK, 'filter_gradient_chunk': FILTER_GRADIENT_CHUNK,
+         'inference_chunk': INFERENCE_CHUNK, **library,
          'analytic_forward_flops': analytic_forward_flops(config),
          'train_bound_examples_per_s': train_bound, 'inference_bound_crops_per_s': infer_bound,
-         'train_fraction_of_bound': blocked['train_examples_per_s'] / train_bound,
-         'inference_fraction_of_bound': blocked['inference_crops_per_s'] / infer_bound,
-         'plain_convolutions': {**plain,
-                                'train_fraction_of_bound': plain['train_examples_per_s'] / train_bound,
-                                'inference_fraction_of_bound': plain['inference_crops_per_s'] / infer_bound}}
-  out['speedup_over_plain'] = {'train': blocked['train_examples_per_s'] / plain['train_examples_per_s'],
-                               'inference': blocked['inference_crops_per_s'] / plain['inference_crops_per_s']}
+         'train_fraction_of_bound': library['train_examples_per_s'] / train_bound,
+         'inference_fraction_of_bound': library['inference_crops_per_s'] / infer_bound,
+         'plain_flax': {**plain,
+                        'train_fraction_of_bound': plain['train_examples_per_s'] / train_bound,
+                        'inference_fraction_of_bound': plain['inference_crops_per_s'] / infer_bound},
+         'max_probability_difference': difference}
+  out['speedup_over_plain'] = {'train': library['train_examples_per_s'] / plain['train_examples_per_s'],
+                               'inference': library['inference_crops_per_s'] / plain['inference_crops_per_s']}
+  if difference > 1e-4:
+    raise SystemExit(f'train_throughput: the plain network disagrees with dexjax\'s by {difference:.2e} in p(success)')
   return out
 
 

@@ -13,7 +13,7 @@ from scipy.signal import correlate
 
 from dexjax.models import GQCNN, GQCNNConfig, ImageStream, SUCTION_POSE_DIM, init_gqcnn
 from dexjax.models.gqcnn import _he_truncated  # the spec's initializer, as GQCNN's layers use it
-from dexjax.models.width_blocked import blocked_kernel, conv_valid
+from dexjax.models.width_blocked import FILTER_GRADIENT_CHUNK, blocked_kernel, conv_valid
 
 
 def _scipy_conv(images: np.ndarray, kernel: np.ndarray) -> np.ndarray:
@@ -62,16 +62,47 @@ def test_blocked_kernel_places_each_tap_once_per_output_phase():
   assert np.count_nonzero(blocked[..., 0]) == np.count_nonzero(blocked[..., 1]) == 10
 
 
-def test_gradients_match_the_plain_convolution():
-  rng = np.random.default_rng(0)
-  images = jnp.asarray(rng.normal(size=(2, 10, 11, 3)), jnp.float32)
+def _scipy_filter_gradient(images: np.ndarray, cotangent: np.ndarray) -> np.ndarray:
+  """Reference: d/dkernel of sum(conv(images, kernel) * cotangent), one correlation per (n, c, o), float64."""
+  batch, _, _, cin = images.shape
+  grad = [[sum(correlate(images[n, :, :, c].astype(np.float64), cotangent[n, :, :, o].astype(np.float64), 'valid')
+               for n in range(batch)) for o in range(cotangent.shape[-1])] for c in range(cin)]
+  return np.asarray(grad).transpose(2, 3, 0, 1)  # (c, o, kh, kw) -> (kh, kw, c, o)
+
+
+@pytest.mark.parametrize('batch', [2, FILTER_GRADIENT_CHUNK + 3], ids=['one-chunk', 'two-chunks'])
+def test_gradients_match_the_plain_convolution_and_scipy(batch):
+  """Both gradients of the blocked convolution equal the plain one's; the filter gradient (summed over chunks of
+  `FILTER_GRADIENT_CHUNK` examples, the second a partial one) equals SciPy's correlation of images and cotangent."""
+  rng = np.random.default_rng(batch)
+  images = jnp.asarray(rng.normal(size=(batch, 10, 11, 3)), jnp.float32)
   kernel = jnp.asarray(rng.normal(size=(3, 3, 3, 4)), jnp.float32)
-  cotangent = jnp.asarray(rng.normal(size=(2, 8, 9, 4)), jnp.float32)
+  cotangent = jnp.asarray(rng.normal(size=(batch, 8, 9, 4)), jnp.float32)
   loss = lambda x, w, f: jnp.sum(conv_valid(x, w, f) * cotangent)
   plain = jax.grad(loss, argnums=(0, 1))(images, kernel, 1)
   blocked = jax.grad(loss, argnums=(0, 1))(images, kernel, 2)
   for a, b in zip(plain, blocked):
     np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-4)
+  np.testing.assert_allclose(np.asarray(blocked[1]), _scipy_filter_gradient(np.asarray(images), np.asarray(cotangent)),
+                             rtol=1e-5, atol=1e-3)
+
+
+def test_forward_mode_derivatives_match_the_plain_convolution():
+  """The custom JVP is the convolution's own: tangents in the images, the kernel, or both."""
+  rng = np.random.default_rng(3)
+  images, d_images = (jnp.asarray(rng.normal(size=(FILTER_GRADIENT_CHUNK + 1, 9, 10, 2)), jnp.float32)
+                      for _ in range(2))
+  kernel, d_kernel = (jnp.asarray(rng.normal(size=(3, 5, 2, 3)), jnp.float32) for _ in range(2))
+  zero_images, zero_kernel = jnp.zeros_like(images), jnp.zeros_like(kernel)
+  for tangents in [(d_images, d_kernel), (d_images, zero_kernel), (zero_images, d_kernel)]:
+    out, tangent = jax.jvp(lambda x, w: conv_valid(x, w, 2), (images, kernel), tangents)
+    expected = conv_valid(tangents[0], kernel, 1) + conv_valid(images, tangents[1], 1)
+    np.testing.assert_allclose(np.asarray(out), np.asarray(conv_valid(images, kernel, 1)), rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(tangent), np.asarray(expected), rtol=1e-5, atol=1e-4)
+  # Differentiating only the kernel (as training does) computes no input gradient: one convolution per chunk of
+  # the filter gradient and none for the images.
+  hlo = jax.jit(jax.grad(lambda w: jnp.sum(conv_valid(images, w, 2)))).lower(kernel).as_text()
+  assert hlo.count('stablehlo.convolution') == 2  # FILTER_GRADIENT_CHUNK + 1 examples: two chunks
 
 
 class _FlaxConvStream(nn.Module):

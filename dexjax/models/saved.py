@@ -24,7 +24,8 @@ import orbax.checkpoint as ocp
 from flax import struct
 
 from dexjax.models.fully_convolutional import score_map
-from dexjax.models.gqcnn import GQCNN, GQCNNConfig, init_gqcnn, success_probability
+from dexjax.models.chunked import network_logits
+from dexjax.models.gqcnn import GQCNNConfig, init_gqcnn, success_probability
 from dexjax.models.normalization import Normalization
 from dexjax.models.symmetry import NUM_VIEWS, symmetric_views
 
@@ -57,7 +58,7 @@ class GraspQualityModel:
 
   def _network_logits(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
     crops, poses = self.normalization.apply(crops, poses, self.config.subtracts_grasp_depth)
-    return GQCNN(self.config).apply({'params': self.params}, crops, poses, train=False)
+    return network_logits(self.params, self.config, crops, poses)
 
   def logits(self, crops: jax.Array, poses: jax.Array) -> jax.Array:
     """Logits (B, 2) of raw crops (B, S, S, 1) metres and raw poses (B, pose_dim). With ``symmetric_views``, the
