@@ -9,11 +9,15 @@ For the Dex-Net 4.0 network (96 x 96 crops, 631,410 parameters) and the quick-st
   ``--repeats`` runs of ``--steps`` steps.
 * ``inference_crops_per_s``: `dexjax.models.predict` (normalise, network in chunks of ``inference_chunk``
   crops, softmax) on batches of 256 crops, median.
-* ``*_flops_per_example``: XLA's cost analysis of the compiled step / forward pass, divided by the batch size;
-  ``analytic_forward_flops``: 2 x multiply-adds of the convolutions and dense layers, counted by hand as a check.
+* ``*_flops_per_example``: the useful work, XLA's cost analysis of the plain network's compiled step / forward
+  pass divided by the batch size (dexjax's own counts would include the width-blocked kernels' zeros and count
+  the chunk loop's body once); ``analytic_forward_flops``: 2 x multiply-adds of the convolutions and dense layers,
+  counted by hand as a check.
 * ``compile_s``: compiling the training step.
-* ``matmul_gflops``: this machine's measured float32 matmul rate (2048 x 2048, median), the roofline used for
-  ``*_bound`` = matmul_gflops / useful flops per example, and ``*_fraction_of_bound``.
+* ``*_fraction_of_bound``: the median over repeats of rate x useful FLOPs per example / this machine's float32
+  matmul rate measured (2048 x 2048) just before that repeat: the roofline is taken at the same moment as the
+  rate, since a shared machine's speed drifts within a run. ``matmul_gflops``: the median of those matmul rates,
+  and ``*_bound`` = matmul_gflops / useful FLOPs per example.
 * ``plain_flax``: the in-run baseline, the same training step and prediction with the network written plainly
   in flax's standard layers (``_plain_gqcnn.PlainGQCNN``: ``nn.Conv``, ``nn.max_pool``, the whole batch at once;
   dexjax's own before width blocking, chunking and its max-pool). Its XLA FLOP counts are the useful work that
@@ -55,23 +59,33 @@ from _plain_gqcnn import PlainGQCNN  # noqa: E402
 TRAIN_BATCH, INFER_BATCH = 64, 256
 
 
-def _median_rate(fn, items: int, repeats: int) -> float:
-  """Median items/s over ``repeats`` calls of ``fn`` (each blocks until done)."""
-  rates = []
+def _rate(fn, items: int) -> float:
+  """items/s of one call of ``fn`` (which blocks until done)."""
+  start = time.perf_counter()
+  fn()
+  return items / (time.perf_counter() - start)
+
+
+_MATMUL_SIZE = 2048
+_matmul = jax.jit(lambda x: x @ x)
+
+
+def matmul_gflops() -> float:
+  """This machine's float32 matmul GFLOP/s now: the median of three 2048 x 2048 x 2048 products."""
+  a = jnp.ones((_MATMUL_SIZE, _MATMUL_SIZE), jnp.float32)
+  _matmul(a).block_until_ready()
+  rates = [_rate(lambda: _matmul(a).block_until_ready(), 2 * _MATMUL_SIZE**3) for _ in range(3)]
+  return statistics.median(rates) / 1e9
+
+
+def _paired_rates(fn, items: int, repeats: int) -> list[tuple[float, float]]:
+  """``repeats`` pairs (items/s of ``fn``, matmul GFLOP/s measured just before it): the roofline of each
+  measurement is taken at the same moment, since this shared machine's speed drifts within a run."""
+  pairs = []
   for _ in range(repeats):
-    start = time.perf_counter()
-    fn()
-    rates.append(items / (time.perf_counter() - start))
-  return statistics.median(rates)
-
-
-def matmul_gflops(repeats: int) -> float:
-  """Measured float32 matmul GFLOP/s (2048 x 2048 x 2048)."""
-  n = 2048
-  a = jax.random.normal(jax.random.key(0), (n, n), jnp.float32)
-  f = jax.jit(lambda x: x @ x)
-  f(a).block_until_ready()
-  return _median_rate(lambda: f(a).block_until_ready(), 2 * n**3, repeats) / 1e9
+    gflops = matmul_gflops()
+    pairs.append((_rate(fn, items), gflops))
+  return pairs
 
 
 def analytic_forward_flops(config: GQCNNConfig) -> int:
@@ -121,7 +135,7 @@ def _rates(config: GQCNNConfig, network: str, steps: int, repeats: int) -> dict:
     jax.block_until_ready(s)
     holder[0] = s
 
-  train_rate = _median_rate(train, steps * TRAIN_BATCH, repeats)
+  train = _paired_rates(train, steps * TRAIN_BATCH, repeats)
   model = GraspQualityModel(params=init_gqcnn(jax.random.key(2), config), normalization=norm, config=config,
                             gripper='parallel_jaw', crop_window=config.crop_size)
   icrops = jnp.asarray(rng.normal(0.7, 0.02, (INFER_BATCH, config.crop_size, config.crop_size, 1)), jnp.float32)
@@ -136,10 +150,16 @@ def _rates(config: GQCNNConfig, network: str, steps: int, repeats: int) -> dict:
       out = infer_fn(model, icrops, iposes)
     out.block_until_ready()
 
-  infer_rate = _median_rate(infer, infer_passes * INFER_BATCH, repeats)
-  return {'compile_s': compile_s, 'train_examples_per_s': train_rate, 'inference_crops_per_s': infer_rate,
+  inference = _paired_rates(infer, infer_passes * INFER_BATCH, repeats)
+  return {'compile_s': compile_s, 'train_examples_per_s': statistics.median(r for r, _ in train),
+          'inference_crops_per_s': statistics.median(r for r, _ in inference),
           'train_flops_per_example': step_flops, 'forward_flops_per_example': forward_flops,
-          '_probabilities': np.asarray(probabilities)}
+          '_train': train, '_inference': inference, '_probabilities': np.asarray(probabilities)}
+
+
+def _fraction(pairs: list[tuple[float, float]], flops_per_item: float) -> float:
+  """Median over repeats of (items/s x useful FLOPs per item) / (matmul rate measured with it)."""
+  return statistics.median(rate * flops_per_item / (gflops * 1e9) for rate, gflops in pairs)
 
 
 @jax.jit
@@ -149,33 +169,40 @@ def _plain_predict(model: GraspQualityModel, crops: jax.Array, poses: jax.Array)
   return success_probability(PlainGQCNN(model.config).apply({'params': model.params}, crops, poses))
 
 
-def measure(config: GQCNNConfig, steps: int, repeats: int, gflops: float) -> dict:
+def measure(config: GQCNNConfig, steps: int, repeats: int) -> dict:
   """The library's network and, in the same run, the plain Flax network (`_plain_gqcnn.PlainGQCNN`).
 
   The FLOP bound is set by the plain network's XLA FLOP counts (the useful work: width blocking adds
-  multiply-adds by zero, which XLA counts), so both fractions are of the same work. ``max_probability_difference``:
-  the largest difference between the two networks' p(success) on the same inference batch and parameters.
+  multiply-adds by zero, which XLA counts), so both fractions are of the same work; each repeat's rate is divided
+  by the matmul rate measured just before it. ``max_probability_difference``: the largest difference between the
+  two networks' p(success) on the same inference batch and parameters.
   """
   plain = _rates(config, 'plain', steps, repeats)
   library = _rates(config, 'dexjax', steps, repeats)
   difference = float(np.max(np.abs(plain.pop('_probabilities') - library.pop('_probabilities'))))
-  train_bound = gflops * 1e9 / plain['train_flops_per_example']
-  infer_bound = gflops * 1e9 / plain['forward_flops_per_example']
+  if difference > 1e-4:
+    raise SystemExit(f'train_throughput: the plain network disagrees with dexjax\'s by {difference:.2e} in p(success)')
+  train_flops, forward_flops = plain['train_flops_per_example'], plain['forward_flops_per_example']
+  for key in ('train_flops_per_example', 'forward_flops_per_example'):
+    del library[key]  # XLA counts the blocked network's zeros and its chunk loop's body once: not the work done
+  fractions = {}
+  for name, rates in (('dexjax', library), ('plain', plain)):
+    pairs = rates.pop('_train'), rates.pop('_inference')
+    fractions[name] = {'train_fraction_of_bound': _fraction(pairs[0], train_flops),
+                       'inference_fraction_of_bound': _fraction(pairs[1], forward_flops)}
+    fractions[name]['matmul_gflops'] = statistics.median(g for _, g in pairs[0] + pairs[1])
+  gflops = fractions['dexjax']['matmul_gflops']
   out = {'parameters': num_parameters(init_gqcnn(jax.random.key(2), config)), 'crop_size': config.crop_size,
          'width_block': WIDTH_BLOCK, 'filter_gradient_chunk': FILTER_GRADIENT_CHUNK,
          'inference_chunk': INFERENCE_CHUNK, **library,
+         'train_flops_per_example': train_flops, 'forward_flops_per_example': forward_flops,
          'analytic_forward_flops': analytic_forward_flops(config),
-         'train_bound_examples_per_s': train_bound, 'inference_bound_crops_per_s': infer_bound,
-         'train_fraction_of_bound': library['train_examples_per_s'] / train_bound,
-         'inference_fraction_of_bound': library['inference_crops_per_s'] / infer_bound,
-         'plain_flax': {**plain,
-                        'train_fraction_of_bound': plain['train_examples_per_s'] / train_bound,
-                        'inference_fraction_of_bound': plain['inference_crops_per_s'] / infer_bound},
+         'train_bound_examples_per_s': gflops * 1e9 / train_flops,
+         'inference_bound_crops_per_s': gflops * 1e9 / forward_flops, **fractions['dexjax'],
+         'plain_flax': {**plain, **fractions['plain']},
          'max_probability_difference': difference}
   out['speedup_over_plain'] = {'train': library['train_examples_per_s'] / plain['train_examples_per_s'],
                                'inference': library['inference_crops_per_s'] / plain['inference_crops_per_s']}
-  if difference > 1e-4:
-    raise SystemExit(f'train_throughput: the plain network disagrees with dexjax\'s by {difference:.2e} in p(success)')
   return out
 
 
@@ -197,11 +224,9 @@ def main() -> None:
   p.add_argument('--data', help='a generated dataset: also time the input pipeline')
   p.add_argument('--pipeline-batches', type=int, default=200)
   args = p.parse_args()
-  gflops = matmul_gflops(args.repeats)
-  result = {'machine': describe(),
-            'matmul_gflops': gflops, 'train_batch': TRAIN_BATCH, 'inference_batch': INFER_BATCH,
-            'dexnet4': measure(GQCNNConfig(), args.steps, args.repeats, gflops),
-            'quickstart': measure(GQCNNConfig.small(), args.steps, args.repeats, gflops)}
+  result = {'machine': describe(), 'train_batch': TRAIN_BATCH, 'inference_batch': INFER_BATCH,
+            'dexnet4': measure(GQCNNConfig(), args.steps, args.repeats),
+            'quickstart': measure(GQCNNConfig.small(), args.steps, args.repeats)}
   if args.data:
     result['input_pipeline'] = pipeline_rate(args.data, args.pipeline_batches)
   print(json.dumps(result, indent=1))
