@@ -19,7 +19,7 @@ For the Dex-Net 4.0 network (96 x 96 crops, 631,410 parameters) and the quick-st
   rate, since a shared machine's speed drifts within a run. ``matmul_gflops``: the median of those matmul rates,
   and ``*_bound`` = matmul_gflops / useful FLOPs per example.
 * ``plain_flax``: the in-run baseline, the same training step and prediction with the network written plainly
-  in flax's standard layers (``_plain_gqcnn.PlainGQCNN``: ``nn.Conv``, ``nn.max_pool``, the whole batch at once;
+  in flax's standard layers (`dexjax.models.plain.PlainGQCNN`: ``nn.Conv``, ``nn.max_pool``, the whole batch at once;
   dexjax's own before width blocking, chunking and its max-pool). Its XLA FLOP counts are the useful work that
   sets both bounds (the width-blocked network's own counts include its multiply-adds by zero);
   ``speedup_over_plain`` is the ratio of the rates; ``max_probability_difference`` the largest difference of the
@@ -47,6 +47,7 @@ import numpy as np
 from dexjax.models import (GQCNNConfig, GraspQualityModel, Normalization, init_gqcnn, num_parameters, predict,
                            success_probability)
 from dexjax.models.chunked import INFERENCE_CHUNK
+from dexjax.models.plain import PlainGQCNN
 from dexjax.models.width_blocked import FILTER_GRADIENT_CHUNK, WIDTH_BLOCK
 from dexjax.train import OptimizerConfig, TrainConfig, create_state, make_optimizer, sgd_step
 import sys
@@ -54,7 +55,6 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from _machine import describe  # noqa: E402
-from _plain_gqcnn import PlainGQCNN  # noqa: E402
 
 TRAIN_BATCH, INFER_BATCH = 64, 256
 
@@ -170,7 +170,7 @@ def _plain_predict(model: GraspQualityModel, crops: jax.Array, poses: jax.Array)
 
 
 def measure(config: GQCNNConfig, steps: int, repeats: int) -> dict:
-  """The library's network and, in the same run, the plain Flax network (`_plain_gqcnn.PlainGQCNN`).
+  """The library's network and, in the same run, the plain Flax network (`dexjax.models.plain.PlainGQCNN`).
 
   The FLOP bound is set by the plain network's XLA FLOP counts (the useful work: width blocking adds
   multiply-adds by zero, which XLA counts), so both fractions are of the same work; each repeat's rate is divided

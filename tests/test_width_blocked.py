@@ -8,11 +8,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from flax import linen as nn
 from scipy.signal import correlate
 
 from dexjax.models import GQCNN, GQCNNConfig, ImageStream, SUCTION_POSE_DIM, init_gqcnn
-from dexjax.models.gqcnn import _he_truncated  # the spec's initializer, as GQCNN's layers use it
+from dexjax.models.plain import PlainGQCNN, PlainImageStream
 from dexjax.models.width_blocked import FILTER_GRADIENT_CHUNK, blocked_kernel, conv_valid
 
 
@@ -105,45 +104,22 @@ def test_forward_mode_derivatives_match_the_plain_convolution():
   assert hlo.count('stablehlo.convolution') == 2  # FILTER_GRADIENT_CHUNK + 1 examples: two chunks
 
 
-class _FlaxConvStream(nn.Module):
-  """The image stream as written before width blocking: flax's nn.Conv (the parameters' reference layout)."""
-
-  config: GQCNNConfig
-
-  @nn.compact
-  def __call__(self, x):
-    for index, (filters, k) in enumerate(zip(self.config.conv_filters, self.config.conv_kernels)):
-      init = _he_truncated(k * k * x.shape[-1])
-      x = nn.relu(nn.Conv(filters, (k, k), padding='VALID', kernel_init=init, bias_init=init, name=f'conv{index}')(x))
-      if index in self.config.pool_after:
-        x = nn.max_pool(x, (2, 2), strides=(2, 2), padding='SAME')
-    return x
-
-
-class _Wrapper(nn.Module):
-  """`_FlaxConvStream` at the path GQCNN gives its image stream, so that its parameters get the same keys."""
-
-  config: GQCNNConfig
-
-  @nn.compact
-  def __call__(self, x):
-    return _FlaxConvStream(self.config, name='image_stream')(x)
-
-
 @pytest.mark.parametrize('config', [GQCNNConfig.small(pose_dim=SUCTION_POSE_DIM),
                                     GQCNNConfig(crop_size=46, conv_kernels=(9, 5, 5, 5))],
                          ids=['small', 'dexnet4-layers'])
 def test_gqcnn_is_independent_of_the_width_block(config):
-  """Same parameters (tree and initial values) and features as nn.Conv's, and the same logits computed plainly
-  (factor 1) and blocked (2)."""
+  """Same parameters (tree and initial values) and features as the network in flax's plain layers
+  (`dexjax.models.plain`: nn.Conv, nn.max_pool), and the same logits computed plainly (factor 1) and blocked (2)."""
   params = init_gqcnn(jax.random.key(4), config)
   crops = jax.random.normal(jax.random.key(5), (3, config.crop_size, config.crop_size, 1))
-  # nn.Conv's parameters under the same name and key: the same tree and the same initial values.
-  reference_params = _Wrapper(config).init(jax.random.key(4), crops)['params']['image_stream']
-  jax.tree.map(np.testing.assert_array_equal, reference_params, params['image_stream'])
-  features = _FlaxConvStream(config).apply({'params': params['image_stream']}, crops)
   poses = jnp.ones((3, config.pose_dim))
-  logits = {f: GQCNN(config, width_block=f).apply({'params': params}, crops, poses) for f in (1, 2)}
-  np.testing.assert_allclose(np.asarray(logits[2]), np.asarray(logits[1]), rtol=1e-5, atol=1e-5)
+  # The plain layers' parameters under the same names and key: the same tree and the same initial values.
+  jax.tree.map(np.testing.assert_array_equal, PlainGQCNN(config).init(jax.random.key(4), crops, poses)['params'],
+               params)
+  features = PlainImageStream(config).apply({'params': params['image_stream']}, crops)
+  reference = PlainGQCNN(config).apply({'params': params}, crops, poses)
+  for f in (1, 2):
+    logits = GQCNN(config, width_block=f).apply({'params': params}, crops, poses)
+    np.testing.assert_allclose(np.asarray(logits), np.asarray(reference), rtol=1e-5, atol=1e-5)
   blocked_features = ImageStream(config).apply({'params': params['image_stream']}, crops)
   np.testing.assert_allclose(np.asarray(blocked_features), np.asarray(features), rtol=1e-5, atol=1e-5)

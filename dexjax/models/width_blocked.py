@@ -114,9 +114,9 @@ def _blocked_conv_jvp(factor, primals, tangents):
   """Tangent of the convolution, bilinear in (images, kernel): blocked in the images, plain in the kernel.
 
   Reverse mode transposes each term: the images' term into the width-blocked input gradient (faster than XLA's
-  plain one on this CPU) and the kernel's term into XLA's plain filter gradient, which runs twice as fast as the
-  width-blocked kernel's (`benchmarks/train_throughput.py`). Zero tangents (e.g. the input crops when only the
-  parameters are differentiated) are skipped, so no work is done for them.
+  plain one on this CPU) and the kernel's term, written as one plain convolution per `FILTER_GRADIENT_CHUNK`
+  examples, into the sum of XLA's plain filter gradients of the chunks (module docstring). Zero tangents (e.g. the
+  input crops when only the parameters are differentiated) are skipped, so no work is done for them.
   """
   images, kernel = primals
   d_images, d_kernel = tangents
