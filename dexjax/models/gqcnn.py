@@ -183,15 +183,26 @@ class GQCNN(nn.Module):
   def __call__(self, image: jax.Array, pose: jax.Array, train: bool = False) -> jax.Array:
     c = self.config
     features = ImageStream(c, self.width_block, name='image_stream')(image)
-    flat = features.reshape(features.shape[0], -1)
-    h = nn.relu(_dense(c.fc_size, flat.shape[-1], 'fc3')(flat))
-    h = nn.Dropout(c.dropout, deterministic=not train)(h)
-    q = nn.relu(_dense(c.pose_size, pose.shape[-1], 'pc1')(pose))
-    fan_in = c.fc_size + c.pose_size
-    merged = (_dense(c.merge_size, fan_in, 'fc4_image', use_bias=False)(h)
-              + _dense(c.merge_size, fan_in, 'fc4_pose')(q))
-    m = nn.Dropout(c.dropout, deterministic=not train)(nn.relu(merged))
-    return _dense(2, c.merge_size, 'fc5', zero_bias=True)(m)
+    return dense_head(c, features, pose, train)
+
+
+def dense_head(config: GQCNNConfig, features: jax.Array, pose: jax.Array, train: bool) -> jax.Array:
+  """The layers after the image stream: fc3 on the flattened features (B, F, F, C), pc1 on the poses (B, pose_dim),
+  the merge fc4 and the logits fc5 (B, 2), each with dropout after fc3 and fc4 in training.
+
+  Call it inside a module's ``nn.compact`` method: the layers become that module's children (``fc3``, ``pc1``,
+  ``fc4_image``, ``fc4_pose``, ``fc5``), as in `GQCNN` and `dexjax.models.plain.PlainGQCNN`.
+  """
+  c = config
+  flat = features.reshape(features.shape[0], -1)
+  h = nn.relu(_dense(c.fc_size, flat.shape[-1], 'fc3')(flat))
+  h = nn.Dropout(c.dropout, deterministic=not train)(h)
+  q = nn.relu(_dense(c.pose_size, pose.shape[-1], 'pc1')(pose))
+  fan_in = c.fc_size + c.pose_size
+  merged = (_dense(c.merge_size, fan_in, 'fc4_image', use_bias=False)(h)
+            + _dense(c.merge_size, fan_in, 'fc4_pose')(q))
+  m = nn.Dropout(c.dropout, deterministic=not train)(nn.relu(merged))
+  return _dense(2, c.merge_size, 'fc5', zero_bias=True)(m)
 
 
 def init_gqcnn(key: jax.Array, config: GQCNNConfig = GQCNNConfig()):
@@ -212,4 +223,4 @@ def num_parameters(params) -> int:
 
 
 __all__ = ['GQCNN', 'GQCNNConfig', 'ImageStream', 'PARALLEL_JAW_POSE_DIM', 'SUCTION_POSE_DIM', 'init_gqcnn',
-           'max_pool_2x2', 'num_parameters', 'success_probability']
+           'dense_head', 'max_pool_2x2', 'num_parameters', 'success_probability']

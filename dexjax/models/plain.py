@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax
 from flax import linen as nn
 
-from dexjax.models.gqcnn import GQCNNConfig, _dense, _he_truncated
+from dexjax.models.gqcnn import GQCNNConfig, _he_truncated, dense_head
 
 
 class PlainImageStream(nn.Module):
@@ -38,16 +38,8 @@ class PlainGQCNN(nn.Module):
 
   @nn.compact
   def __call__(self, image: jax.Array, pose: jax.Array, train: bool = False) -> jax.Array:
-    c = self.config
-    features = PlainImageStream(c, name='image_stream')(image)
-    flat = features.reshape(features.shape[0], -1)
-    h = nn.Dropout(c.dropout, deterministic=not train)(nn.relu(_dense(c.fc_size, flat.shape[-1], 'fc3')(flat)))
-    q = nn.relu(_dense(c.pose_size, pose.shape[-1], 'pc1')(pose))
-    fan_in = c.fc_size + c.pose_size
-    merged = (_dense(c.merge_size, fan_in, 'fc4_image', use_bias=False)(h)
-              + _dense(c.merge_size, fan_in, 'fc4_pose')(q))
-    m = nn.Dropout(c.dropout, deterministic=not train)(nn.relu(merged))
-    return _dense(2, c.merge_size, 'fc5', zero_bias=True)(m)
+    features = PlainImageStream(self.config, name='image_stream')(image)
+    return dense_head(self.config, features, pose, train)  # nn.Dense layers, GQCNN's names and initializers
 
 
 __all__ = ['PlainGQCNN', 'PlainImageStream']
