@@ -23,8 +23,8 @@ For the Dex-Net 4.0 network (96 x 96 crops, 631,410 parameters) and the quick-st
   dexjax's own before width blocking, chunking and its max-pool). Its XLA FLOP counts are the useful work that
   sets both bounds (the width-blocked network's own counts include its multiply-adds by zero);
   ``speedup_over_plain`` is the ratio of the two networks' fractions of the bound (their rates, each divided by
-  the matmul rate measured with it, as they run minutes apart); ``max_probability_difference`` the largest difference of the
-  two networks' p(success) on the same batch (the run fails above 1e-4).
+  the matmul rate measured with it, as they run minutes apart); ``max_probability_difference`` the largest
+  difference of the two networks' p(success) on the same batch (the run fails above 1e-4).
 
 With ``--data DIR`` (a generated dataset) it also times the input pipeline alone (`dexjax.train.train_batches`:
 shard reading, shuffling, grasp crops) in examples/s.
