@@ -74,7 +74,7 @@ def test_datasets_made_before_sleeping_objects_keep_their_fingerprint():
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
   assert fingerprint(awake(GenerateConfig())) == 'cf3654bb50bcac26'
   assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '652ea5cd1f771249'
-  faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7, rollout_wave=3)
+  faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))
 

@@ -247,7 +247,8 @@ def load_generate_config(path: str | os.PathLike[str] | None = None, *,
 
 
 # Settling fields that change speed, not results, enter the fingerprint at fixed values (those datasets were made
-# with before they became speed-only), so changing them never changes it and older datasets keep theirs.
+# with before they became speed-only), so changing them never changes it and older datasets keep theirs
+# (`rollout_wave` is no longer a setting: each thread settles one heap at a time since 2026-12-05).
 _SPEED_ONLY = {'chunk_steps': 25, 'rollout_wave': 256}
 
 

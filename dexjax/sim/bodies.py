@@ -14,6 +14,7 @@ clipped the inertia is scaled by the same factor (same shape, different density)
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Iterable
 from typing import Protocol
 
@@ -64,6 +65,12 @@ class HeapObject:
                        f'{np.linalg.eigvalsh(inertia)}')
     object.__setattr__(self, 'center_of_mass', com)
     object.__setattr__(self, 'inertia', inertia)
+
+  @functools.cached_property
+  def vertices_about_com(self) -> np.ndarray:
+    """(V, 3) float64: every hull's vertices, concatenated, relative to the centre of mass (object axes, metres);
+    computed once per object (settling reads it for every heap the object is dropped into)."""
+    return np.concatenate(self.hulls) - self.center_of_mass
 
   @property
   def radius(self) -> float:

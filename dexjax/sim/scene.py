@@ -70,9 +70,8 @@ class SettleSettings:
       body whose velocity stays below ``sleep_tolerance`` is taken out of the simulation until a contact with a
       moving body wakes it, so the bottom of a heap stops costing time while the last objects still move.
     sleep_tolerance: MuJoCo's ``sleep_tolerance`` (its default, 1e-3).
-    nthread: threads of the `rollout` backend; None: ``os.cpu_count()``.
-    rollout_wave: the `rollout` backend settles at most this many heaps at a time (each holds a MuJoCo model
-      and an `MjData` with a 16 MB arena), so memory stays bounded for large batches.
+    nthread: threads of the `rollout` backend (each settles one heap at a time, so at most this many models and
+      `MjData` are in memory); None: ``os.cpu_count()``.
     mjx_batch_size: heaps per compiled `mjx` call (heaps are grouped by object set first).
     mjx_subprocess: run `mjx` settling in a child process (a guard against the batched-LAPACK deadlock seen on
       2-core CPUs, and the only way to enforce a timeout); None: on CPU only.
@@ -96,7 +95,6 @@ class SettleSettings:
   sleep: bool = struct.field(pytree_node=False, default=True)
   sleep_tolerance: float = struct.field(pytree_node=False, default=1e-3)
   nthread: int | None = struct.field(pytree_node=False, default=None)
-  rollout_wave: int = struct.field(pytree_node=False, default=256)
   mjx_batch_size: int = struct.field(pytree_node=False, default=64)
   mjx_subprocess: bool | None = struct.field(pytree_node=False, default=None)
   mjx_timeout: float = struct.field(pytree_node=False, default=1800.0)
@@ -110,8 +108,7 @@ class SettleSettings:
       value = getattr(self, field)
       if not (np.isfinite(value) and value > 0):
         raise ValueError(f'SettleSettings.{field}: expected a finite number > 0, got {value!r}')
-    for field in ('max_steps', 'chunk_steps', 'solver_iterations', 'ls_iterations', 'mjx_batch_size',
-                  'rollout_wave'):
+    for field in ('max_steps', 'chunk_steps', 'solver_iterations', 'ls_iterations', 'mjx_batch_size'):
       value = getattr(self, field)
       if not (isinstance(value, (int, np.integer)) and value >= 1):
         raise ValueError(f'SettleSettings.{field}: expected an int >= 1, got {value!r}')
@@ -169,8 +166,7 @@ def drop_poses(objects: Sequence[HeapObject], state: HeapState, settings: Settle
   gap = settings.drop_gap
   for slot, q, rot in zip(slots, q_all, rotations):
     obj = objects[int(ids[slot])]
-    local = np.concatenate(obj.hulls) - obj.center_of_mass  # vertices about the centre of mass
-    world = local @ rot.T
+    world = obj.vertices_about_com @ rot.T
     lo_rel, hi_rel = world.min(axis=0), world.max(axis=0)
     com = com_drop[slot].copy()
     blo, bhi = np.asarray(lows), np.asarray(highs)
