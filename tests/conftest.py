@@ -45,7 +45,7 @@ DURATIONS = pathlib.Path(__file__).with_name("durations.json")
 
 
 def pytest_collection_modifyitems(config, items):  # pylint: disable=unused-argument
-  """Test files run longest first, by the seconds per file in tests/durations.json (a whole run's, written by
+  """Test files run longest first, by the seconds per file in tests/durations.json (a CI run's, written by
   ``python tests/durations.py <junit xml>``; a file not listed counts as longest, its cost unknown). With
   ``--dist loadfile --no-loadscope-reorder`` (pyproject.toml) each file goes whole to the next free worker in this
   order, so the run ends on short files and both workers finish together. xdist's own order (most tests first)
