@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import json
-import math
 import os
-import pathlib
 
 import pytest
 
@@ -40,18 +37,6 @@ def _share_compiled_programs():
 _share_compiled_programs()
 
 GRID = 64  # small grids keep the suite fast; the library default is 100
-
-DURATIONS = pathlib.Path(__file__).with_name("durations.json")
-
-
-def pytest_collection_modifyitems(config, items):  # pylint: disable=unused-argument
-  """Test files run longest first, by the seconds per file in tests/durations.json (a CI run's, written by
-  ``python tests/durations.py <junit xml>``; a file not listed counts as longest, its cost unknown). With
-  ``--dist loadfile --no-loadscope-reorder`` (pyproject.toml) each file goes whole to the next free worker in this
-  order, so the run ends on short files and both workers finish together. xdist's own order (most tests first)
-  left the one-test notebook files, up to four minutes each, for the end, with the other worker idle."""
-  seconds = json.loads(DURATIONS.read_text()) if DURATIONS.exists() else {}
-  items.sort(key=lambda item: -seconds.get(item.location[0], math.inf))  # stable: a file's tests keep their order
 
 
 @pytest.fixture(scope="session")
