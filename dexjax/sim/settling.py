@@ -126,16 +126,15 @@ def resting(qpos: Any, qvel: Any, centers_of_mass: Any, settings: SettleSettings
   return (lin < settings.linear_speed_tol) & (ang < settings.angular_speed_tol)
 
 
-def _first_rest(qpos: np.ndarray, qvel: np.ndarray, centers_of_mass: np.ndarray, com_distances: np.ndarray,
-                settings: SettleSettings) -> int:
+def _first_rest(qpos: np.ndarray, qvel: np.ndarray, centers_of_mass: np.ndarray, settings: SettleSettings) -> int:
   """Index of the first step (rows of ``qpos`` (n, m, 7), ``qvel`` (n, m, 6)) at which every object rests
   (`resting`), or -1. Steps are screened first with a necessary condition (a third of `resting`'s time on a
   chunk of 50 steps in which nothing rests, most chunks of a heap): the angular speed test itself, and
   ``|v| - |omega| |c| < linear_speed_tol`` (the centre of mass moves at least that fast, since
-  ``|omega x c| <= |omega| |c|``; ``com_distances`` (m,) is ``|c|``, and a 1e-9 m/s margin covers rounding);
+  ``|omega x c| <= |omega| |c|``, with ``c`` the (m, 3) ``centers_of_mass``; a 1e-9 m/s margin covers rounding);
   `resting` then decides on the steps that pass, so the result is `resting`'s, bit for bit."""
   omega = np.linalg.norm(qvel[..., 3:], axis=-1)
-  slowest = np.linalg.norm(qvel[..., :3], axis=-1) - omega * com_distances
+  slowest = np.linalg.norm(qvel[..., :3], axis=-1) - omega * np.linalg.norm(centers_of_mass, axis=-1)
   candidates = np.flatnonzero(np.all((omega < settings.angular_speed_tol)
                                      & (slowest < settings.linear_speed_tol + 1e-9), axis=1))
   if not candidates.size:
@@ -229,7 +228,6 @@ class _RolloutHeap:
     poses = self.drop if start is None else np.asarray(start, np.float64)  # (P, 7) in slot order
     self.data.qpos[:] = poses[heap_slots(state)].reshape(-1)
     self.coms = _coms(objects, state)
-    self.com_distances = np.linalg.norm(self.coms, axis=1)
     self.spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     self.state = np.empty(mujoco.mj_stateSize(self.model, self.spec))
     mujoco.mj_getState(self.model, self.data, self.state, self.spec)
@@ -249,7 +247,7 @@ class _RolloutHeap:
       self.diverged, self.done = True, True
       self.state, self.steps = traj[-1], self.steps + nstep
       return
-    first = _first_rest(qpos, qvel, self.coms, self.com_distances, settings)
+    first = _first_rest(qpos, qvel, self.coms, settings)
     if first >= 0:
       self.state, self.steps, self.done = traj[first], self.steps + first + 1, True
     else:
@@ -266,11 +264,8 @@ def _settle_one(objects: Sequence[HeapObject], state: HeapState, settings: Settl
   """One heap from its drop (or ``start``) poses until it rests or ``max_steps``, ``chunk_steps`` at a time:
   (final qpos, final qvel, steps, diverged, drop poses); its model and `MjData` are freed on return."""
   heap = _RolloutHeap(objects, state, settings, start)
-  elapsed = 0
-  while not heap.done and elapsed < settings.max_steps:
-    nstep = min(settings.chunk_steps, settings.max_steps - elapsed)
-    heap.advance(nstep, settings)
-    elapsed += nstep
+  while not heap.done and heap.steps < settings.max_steps:  # steps: simulated so far, until the heap is done
+    heap.advance(min(settings.chunk_steps, settings.max_steps - heap.steps), settings)
   return (*heap.final(), heap.steps, heap.diverged, heap.drop)
 
 
