@@ -7,6 +7,11 @@ import os
 import pytest
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
+# One OpenMP / BLAS thread per process: xdist runs two workers on this machine's two cores, and an OpenMP team that
+# spins waiting for a core the other worker holds is many times slower than one thread (scikit-learn's Barnes-Hut
+# t-SNE in notebooks/analysis.ipynb: 9 s alone, 73 s beside a busy JAX process with two threads, 8 s with one;
+# 2026-12-05). Set before NumPy or scikit-learn loads; notebook kernels and CLI subprocesses inherit it.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 MIN_CACHED_COMPILE_S = 0.0  # the test session's persistent-cache threshold: every program (JAX's default: 1 s)
