@@ -123,3 +123,29 @@ def test_gqcnn_is_independent_of_the_width_block(config):
     np.testing.assert_allclose(np.asarray(logits), np.asarray(reference), rtol=1e-5, atol=1e-5)
   blocked_features = ImageStream(config).apply({'params': params['image_stream']}, crops)
   np.testing.assert_allclose(np.asarray(blocked_features), np.asarray(features), rtol=1e-5, atol=1e-5)
+
+
+def test_gqcnn_parameter_gradients_are_the_plain_networks_where_pools_tie():
+  """The GQ-CNN pools before its bias and ReLU (`_Conv`), the plain network after them (nn.max_pool gives a tied
+  window's gradient to one input, `max_pool_2x2` shares it): on crops with flat regions, where neighbouring
+  convolution outputs are equal, every parameter's gradient is still the plain network's."""
+  config = GQCNNConfig.small(pose_dim=SUCTION_POSE_DIM)
+  params = init_gqcnn(jax.random.key(6), config)
+  crops = jax.random.normal(jax.random.key(7), (4, config.crop_size, config.crop_size, 1))
+  crops = crops.at[:, 4:20, 6:26].set(0.3).at[1:3, 12:, :].set(-0.2)  # flat regions: tied pool windows
+  poses = jax.random.normal(jax.random.key(8), (4, config.pose_dim))
+  features = ImageStream(config).apply({'params': params['image_stream']}, crops)
+  first_conv = jax.lax.conv_general_dilated(crops, params['image_stream']['conv0']['kernel'], (1, 1), 'VALID',
+                                            dimension_numbers=('NHWC', 'HWIO', 'NHWC'))
+  windows = np.asarray(first_conv[:, :28, :28]).reshape(4, 14, 2, 14, 2, -1)
+  assert np.any(windows[:, :, 0, :, 0] == windows[:, :, 1, :, 1])  # the crops do tie pool windows
+  assert float(jnp.mean(features > 0)) > 0.2  # and the ReLUs pass gradients
+
+  def loss(network):
+    return lambda p: jnp.sum(jax.nn.log_softmax(network.apply({'params': p}, crops, poses))[:, 1])
+
+  expected = jax.grad(loss(PlainGQCNN(config)))(params)
+  for f in (1, 2):
+    got = jax.grad(loss(GQCNN(config, width_block=f)))(params)
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6),
+                 got, expected)
