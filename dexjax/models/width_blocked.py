@@ -14,9 +14,11 @@ same convolution f times wider on both sides:
 
 Each output block reads K' f >= k input columns, so the product does (K' f / k) times the multiply-adds (1.2 for
 k = 5, f = 2; 1.33 for k = 3), but at twice the channels XLA runs every layer faster, and the whole network's
-inference 1.6 times faster (``benchmarks/train_throughput.py``, README "GQ-CNN training"). Widths that f does
-not divide are padded on the right with zeros and the extra output columns dropped, so any image size and kernel
-work. The parameters are the plain kernel's.
+inference 1.6 times faster (``benchmarks/train_throughput.py``, README "GQ-CNN training"). The reason, found later:
+XLA (jaxlib 0.10) gives a convolution to YNNPACK only when it has more than 16 input or output channels; a GQ-CNN's
+plain 1 -> 16 and 16 -> 16 layers fall back to XLA's generic convolution, their blocked forms (2 -> 32, 32 -> 32)
+run in YNNPACK's kernels. Widths that f does not divide are padded on the right with zeros and the extra output
+columns dropped, so any image size and kernel work. The parameters are the plain kernel's.
 
 Gradients: the input gradient is the width-blocked convolution's own (faster than XLA's plain one here), but the
 filter gradient is not: XLA's filter gradient of the blocked kernel took twice as long as that of the plain kernel
