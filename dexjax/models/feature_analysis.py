@@ -41,8 +41,7 @@ def _intermediates(model: GraspQualityModel, crops: jax.Array, poses: jax.Array)
   logits, state = GQCNN(model.config).apply({'params': model.params}, crops, poses, train=False,
                                             capture_intermediates=True)
   inter = state['intermediates']
-  out = {name: jax.nn.relu(value['__call__'][0]) for name, value in inter['image_stream'].items()
-         if name.startswith('conv')}
+  out = {name: value['activation'][0] for name, value in inter['image_stream'].items() if name.startswith('conv')}
   out['fc3'] = jax.nn.relu(inter['fc3']['__call__'][0])
   out['pc1'] = jax.nn.relu(inter['pc1']['__call__'][0])
   out['fc4'] = jax.nn.relu(inter['fc4_image']['__call__'][0] + inter['fc4_pose']['__call__'][0])

@@ -120,7 +120,9 @@ class _Conv(nn.Module):
   With ``pool`` the bias and ReLU come after the pool, on a quarter of the values: a max commutes with adding a
   per-channel constant and with the ReLU (both monotone, also in floating point), so the values are exactly those
   of pool(ReLU(conv + bias)). On this project's 2-core CPU the Dex-Net 4.0 network inferred 5-6 % more crops per
-  second (the bias and ReLU after its 88 x 88 layer had been 4 % of the forward pass; 2026-12-05).
+  second (the bias and ReLU after its 88 x 88 layer had been 4 % of the forward pass; 2026-12-05). When the
+  ``intermediates`` collection is mutable (``apply(..., capture_intermediates=True)``), ReLU(conv + bias) before
+  the pool is also sown there as ``activation`` (`dexjax.models.feature_analysis`); otherwise it is not computed.
   """
 
   features: int
@@ -135,6 +137,8 @@ class _Conv(nn.Module):
     kernel = self.param('kernel', init, (k, k, x.shape[-1], self.features), jnp.float32)
     bias = self.param('bias', init, (self.features,), jnp.float32)
     y = conv_valid(x, kernel, self.width_block)
+    if self.is_mutable_collection('intermediates'):  # layer analysis (`capture_intermediates`): the map before its pool
+      self.sow('intermediates', 'activation', nn.relu(y + bias))
     return nn.relu((max_pool_2x2(y) if self.pool else y) + bias)
 
 
