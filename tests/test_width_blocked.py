@@ -135,8 +135,7 @@ def test_gqcnn_parameter_gradients_are_the_plain_networks_where_pools_tie():
   crops = crops.at[:, 4:20, 6:26].set(0.3).at[1:3, 12:, :].set(-0.2)  # flat regions: tied pool windows
   poses = jax.random.normal(jax.random.key(8), (4, config.pose_dim))
   features = ImageStream(config).apply({'params': params['image_stream']}, crops)
-  first_conv = jax.lax.conv_general_dilated(crops, params['image_stream']['conv0']['kernel'], (1, 1), 'VALID',
-                                            dimension_numbers=('NHWC', 'HWIO', 'NHWC'))
+  first_conv = conv_valid(crops, params['image_stream']['conv0']['kernel'], 1)  # XLA's plain convolution
   windows = np.asarray(first_conv[:, :28, :28]).reshape(4, 14, 2, 14, 2, -1)
   assert np.any(windows[:, :, 0, :, 0] == windows[:, :, 1, :, 1])  # the crops do tie pool windows
   assert float(jnp.mean(features > 0)) > 0.2  # and the ReLUs pass gradients
