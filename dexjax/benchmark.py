@@ -3,15 +3,19 @@
   python -m dexjax.benchmark --policy ambidextrous [--policy suction_heuristic ...] --objects SOURCE ...
       --out DIR [--per-trial 25] [--trials 5] [--judge physics|analytic] [--model pretrained|RUN_DIR]
       [--max-attempts 75] [--max-failures 10] [--config FILE] [--camera-config FILE] [--no-noise]
-      [--known-mass] [--cem seed|gqcnn] [--seed S] [--workers N | --ray [--ray-address ADDR]]
-      [--cache-dir DIR] [--no-figures] [--json]
+      [--known-mass] [--cem seed|gqcnn] [--seed S] [--failure-memory R [--memory-attempts N]] [--shake]
+      [--push] [--workers N | --ray [--ray-address ADDR]] [--cache-dir DIR] [--no-figures] [--json]
 
 Each trial fills the bin with ``--per-trial`` objects of the set (dropped and settled in MuJoCo), then each policy
-looks (a depth image from the run's camera, with 1 mm sensor noise and 1 % dropped pixels unless ``--no-noise``), plans, and its grasp is
-judged twice: by the analytic reward of the training labels and by executing it in MuJoCo (grip, lift 0.2 m,
-transport, shake). ``--judge`` (default physics) decides which verdict advances the trial: on success the object
-leaves the bin and the rest settle. A trial ends when the bin is empty, after ``--max-attempts`` attempts or after
-``--max-failures`` consecutive failures. Every policy meets the same bins (trial t of seed S).
+looks (a depth image from the run's camera, with 1 mm sensor noise and 1 % dropped pixels unless ``--no-noise``),
+plans, and its grasp is judged twice: by the analytic reward of the training labels and by executing it in MuJoCo
+(the labels' collision rule, then grip, lift 0.2 m, transport to a receptacle beside the bin, release; ``--shake``
+adds a shake before the release, ``--push`` lets the gripper push objects aside instead of the collision rule).
+``--judge`` (default physics) decides which verdict advances the trial: on success the object leaves the bin and
+the rest settle. A trial ends when the bin is empty, after ``--max-attempts`` attempts or after ``--max-failures``
+consecutive failures. Every policy meets the same bins (trial t of seed S). ``--policy supervisor`` is the dataset's
+supervisor with the bin's true state (privileged: the ceiling of the table). ``--failure-memory R`` gives every
+policy a memory: no grasp within R metres of a failed grasp of the last ``--memory-attempts`` attempts (default 5).
 
 Writes DIR/attempts.jsonl (one line per attempt, appended as it ends: policy, gripper, predicted q, both
 verdicts and failure reasons, object, times, bin state), DIR/results.json (``{"policies": {NAME: {"reliability",
@@ -31,7 +35,7 @@ import sys
 from dexjax.cli import FAILURE_EXIT, OK_EXIT, check_output_dir, command
 
 _POLICIES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 'suction_heuristic',
-             'composite_heuristic')
+             'composite_heuristic', 'supervisor')
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -59,6 +63,14 @@ def _parser() -> argparse.ArgumentParser:
                  help="the analytic judge uses each object's simulated mass instead of the reward's Gamma draws")
   p.add_argument('--cem', choices=('seed', 'gqcnn'), default='seed', help='CEM preset of the learned policies')
   p.add_argument('--seed', type=int, default=0, help='benchmark seed: bins, cameras and keys (default 0)')
+  p.add_argument('--failure-memory', type=float, default=0.0, metavar='R',
+                 help='no grasp within R metres of a recent failed grasp (default 0: no memory, as the seed)')
+  p.add_argument('--memory-attempts', type=int, default=5, metavar='N',
+                 help='a failed grasp is remembered for the next N attempts (default 5)')
+  p.add_argument('--shake', action='store_true', help='physics judge: shake the held object before the release '
+                                                      '(a stress test; not in the seed\'s protocol)')
+  p.add_argument('--push', action='store_true', help='physics judge: the gripper pushes objects in its way aside '
+                                                     'instead of failing on the labels\' collision rule')
   p.add_argument('--workers', type=int, default=1, help='trials run in parallel on this many processes')
   p.add_argument('--ray', action='store_true', help='run trials on Ray (a local instance, or --ray-address)')
   p.add_argument('--ray-address', help='join this Ray cluster')
@@ -75,6 +87,10 @@ def _check_args(args: argparse.Namespace) -> None:
       raise ValueError(f'{option}: expected an integer >= 1, got {value}')
   if args.seed < 0:
     raise ValueError(f'--seed: expected an integer >= 0, got {args.seed}')
+  if not (math.isfinite(args.failure_memory) and args.failure_memory >= 0):
+    raise ValueError(f'--failure-memory: expected a number >= 0 (metres), got {args.failure_memory}')
+  if args.memory_attempts < 1:
+    raise ValueError(f'--memory-attempts: expected an integer >= 1, got {args.memory_attempts}')
   if len(set(args.policy)) != len(args.policy):
     raise ValueError(f'--policy: each policy once, got {args.policy}')
   if args.ray_address and not args.ray:
@@ -82,15 +98,23 @@ def _check_args(args: argparse.Namespace) -> None:
   check_output_dir(args.out)
 
 
+def _number(value, form: str) -> str:
+  return 'n/a' if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, form)
+
+
 def format_table(results: dict) -> str:
-  """The results as a plain-text table: policy, attempts, reliability per level, MPPH, judge agreement."""
-  rows = ['policy                 attempts  reliability  per level                      MPPH   agree']
+  """The results as a plain-text table: policy (``*``: privileged state), attempts, reliability per level, MPPH,
+  judge agreement, fraction of objects cleared and repeated attempts."""
+  rows = ['policy                 attempts  reliability  per level                      MPPH   agree  cleared  repeats']
   for name, e in results['policies'].items():
     levels = ', '.join(f"L{k}: {v['reliability']:.2f}" if k != 'None' else f"other: {v['reliability']:.2f}"
                        for k, v in e['per_level'].items())
-    agree = e['judge_agreement']
-    rows.append(f"{name:22s} {e['attempts']:8d}  {e['reliability']:11.3f}  {levels:29s} {e['mpph']:6.0f}   "
-                + ('  n/a' if agree is None or (isinstance(agree, float) and math.isnan(agree)) else f'{agree:.3f}'))
+    label = name + (' *' if e.get('privileged') else '')
+    rows.append(f"{label:22s} {e['attempts']:8d}  {e['reliability']:11.3f}  {levels:29s} {e['mpph']:6.0f}   "
+                f"{_number(e['judge_agreement'], '.3f'):5s}  {_number(e.get('cleared'), '.2f'):7s}  "
+                f"{e.get('repeated_attempts', 0):7d}")
+  if any(e.get('privileged') for e in results['policies'].values()):
+    rows.append('* privileged: plans with the true state of the simulated bin (the ceiling, not a deployable policy)')
   return '\n'.join(rows)
 
 
@@ -112,10 +136,18 @@ def main(argv: list[str] | None = None) -> int:
     config = dataclasses.replace(config, noise=SensorNoise())
   elif not configured_noise:
     config = dataclasses.replace(config, noise=benchmark_noise())
+  from dexjax.bench.execution import PhysicsSettings  # pylint: disable=g-import-not-at-top
+  from dexjax.bench.failure_memory import FailureMemory  # pylint: disable=g-import-not-at-top
+  physics = PhysicsSettings()
+  if args.shake:
+    physics = dataclasses.replace(physics, path=dataclasses.replace(physics.path, shake_cycles=2))
+  if args.push:
+    physics = dataclasses.replace(physics, collision_check=False)
   spec = BenchmarkSpec(policies=tuple(args.policy), config=config,
                        protocol=Protocol(objects_per_trial=args.per_trial, trials=args.trials,
                                          max_attempts=args.max_attempts, max_consecutive_failures=args.max_failures),
-                       judge=args.judge, model=args.model, cem=args.cem, seed=args.seed, known_mass=args.known_mass)
+                       judge=args.judge, model=args.model, cem=args.cem, seed=args.seed, known_mass=args.known_mass,
+                       physics=physics, memory=FailureMemory(args.failure_memory, args.memory_attempts))
   results = run_benchmark(spec, args.out, workers=args.workers, backend='ray' if args.ray else None,
                           ray_address=args.ray_address, cache_dir=args.cache_dir, progress=not args.json,
                           figures=not args.no_figures)

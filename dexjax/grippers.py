@@ -20,6 +20,13 @@ STANDARD_GRAVITY = 9.81  # m/s^2
 #: Suction payload of the Dex-Net 4.0 cup (seed: "approximately 0.9 kg").
 SUCTION_PAYLOAD_KG = 0.9
 
+#: Safety factor of a suction gripper on its static load: at least 1.5 for smooth, dense workpieces (Schmalz's
+#: sizing guide, after the German accident-prevention regulation UVV).
+SUCTION_SAFETY_FACTOR = 1.5
+
+#: The heaviest object the seed's cup is rated for: its payload over the safety factor, kg (0.6).
+SUCTION_RATED_MASS_KG = SUCTION_PAYLOAD_KG / SUCTION_SAFETY_FACTOR
+
 
 @struct.dataclass
 class ParallelJawGripper:

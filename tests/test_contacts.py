@@ -240,3 +240,30 @@ def test_suction_wrench_set_matches_the_spec_inequalities_with_cvxopt():
     assert ref / 2 - 1e-4 <= ours <= ref + 1e-4
   assert agree == trials
   assert 0.2 * trials < feasible < 0.8 * trials
+
+
+def test_ring_limit_excess_is_zero_exactly_on_the_wrench_set_of_the_labels():
+  """Wrenches generated as the labels' suction-ring set generates them (non-negative weights on the 8 friction /
+  torsion cone generators (+-mu/sqrt3, +-mu/sqrt3, 1, +-mu r/sqrt3) and elastic torques within pi r kappa /
+  sqrt 2; minus the vacuum pull along z_c) are within every limit; moving one component 5 % past its bound breaks
+  exactly that limit (`dexjax.contacts.ring_limit_excess`, the physics judge's check)."""
+  from dexjax.contacts import RING_LIMITS, ring_limit_excess  # pylint: disable=g-import-not-at-top
+  rng = np.random.default_rng(7)
+  r, V, mu = float(CUP.cup_radius), float(CUP.vacuum_force), 0.7
+  bend = np.pi * r * float(CUP.elastic_limit) / np.sqrt(2)
+  signs = np.array([[sx, sy, st] for sx in (1, -1) for sy in (1, -1) for st in (1, -1)], np.float64)
+  for _ in range(200):
+    w = rng.exponential(size=8) * rng.uniform(0.1, 10.0) / 8
+    generators = np.stack([signs[:, 0] * mu / np.sqrt(3), signs[:, 1] * mu / np.sqrt(3), np.ones(8)], 1)
+    force = (w[:, None] * generators).sum(0)
+    torsion = float((w * signs[:, 2] * mu * r / np.sqrt(3)).sum())
+    wrench = np.array([force[0], force[1], force[2] - V, *rng.uniform(-bend, bend, 2), torsion])
+    assert not ring_limit_excess(wrench, mu, CUP).any()
+    n = force[2]
+    for name, index, bound in (('friction_x', 0, mu * n / np.sqrt(3)), ('torsion', 5, mu * r * n / np.sqrt(3)),
+                               ('bending_y', 4, bend)):
+      pushed = wrench.copy()
+      pushed[index] = 1.05 * bound
+      excess = dict(zip(RING_LIMITS, ring_limit_excess(pushed, mu, CUP)))
+      assert excess[name] == pytest.approx(0.05 * bound, rel=1e-6)
+      assert sum(v > 0 for v in excess.values()) == 1

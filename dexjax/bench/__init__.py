@@ -5,14 +5,17 @@ runner of whole benchmarks (`run_benchmark`, the engine of ``python -m dexjax.be
 
 from dexjax.bench.analytic_judge import analytic_verdict, world_grasp
 from dexjax.bench.attempt_log import AttemptLogError, append_attempt, read_attempts
-from dexjax.bench.execution import (PHYSICS_FAILURES, RING_LIMITS, PhysicsOutcome, PhysicsSettings, execute_grasp,
-                                    ring_violation)
+from dexjax.bench.collision_rule import collision_samples, gripper_collision
+from dexjax.bench.execution import PHYSICS_FAILURES, PhysicsOutcome, PhysicsSettings, execute_grasp, receptacle_centre
+from dexjax.bench.suction_hold import SealHold, seal_hold, seal_tolerance
 from dexjax.bench.judges import Judge, Verdict, analytic_judge, physics_judge
-from dexjax.bench.picking_metrics import (Z_95, MotionModel, move_seconds, object_difficulty, reliability, sem_interval,
-                                          summarize, wilson_interval)
+from dexjax.bench.failure_memory import FailureMemory, REPEAT_RADIUS, repeated_attempts
+from dexjax.bench.picking_metrics import (Z_95, MotionModel, cleared_fraction, move_seconds, object_difficulty,
+                                          rated_acceleration, reliability, sem_interval, summarize, wilson_interval)
+from dexjax.bench.supervisor_policy import SUPERVISOR, SupervisorPolicy, supervisor_policy
 from dexjax.bench.protocol import STOP_REASONS, Protocol, stop_reason
 from dexjax.bench.runner import BenchmarkSpec, benchmark_config, run_benchmark, summarize_run
-from dexjax.bench.tool_path import PHASES, PathSettings, ToolPath, tool_path
+from dexjax.bench.tool_path import PHASES, PathSettings, ToolPath, move_fraction, tool_path
 from dexjax.bench.trial import NO_GRASP, Planner, run_trial, trial_key
 from dexjax.bench.world import BinState, PickingWorld, object_level
 
@@ -20,9 +23,12 @@ __all__ = [
     'BinState', 'NO_GRASP', 'PickingWorld', 'Planner', 'Protocol', 'STOP_REASONS', 'object_level', 'run_trial',
     'stop_reason', 'trial_key',
     'Judge', 'Verdict', 'analytic_judge', 'analytic_verdict', 'physics_judge', 'world_grasp',
-    'PHYSICS_FAILURES', 'RING_LIMITS', 'PhysicsOutcome', 'PhysicsSettings', 'execute_grasp', 'ring_violation',
-    'PHASES', 'PathSettings', 'ToolPath', 'tool_path',
+    'PHYSICS_FAILURES', 'PhysicsOutcome', 'PhysicsSettings', 'execute_grasp', 'receptacle_centre',
+    'SealHold', 'seal_hold', 'seal_tolerance', 'collision_samples', 'gripper_collision',
+    'PHASES', 'PathSettings', 'ToolPath', 'move_fraction', 'tool_path',
+    'FailureMemory', 'REPEAT_RADIUS', 'repeated_attempts', 'SUPERVISOR', 'SupervisorPolicy', 'supervisor_policy',
     'BenchmarkSpec', 'benchmark_config', 'run_benchmark', 'summarize_run',
-    'AttemptLogError', 'MotionModel', 'Z_95', 'append_attempt', 'move_seconds', 'object_difficulty', 'read_attempts',
-    'reliability', 'sem_interval', 'summarize', 'wilson_interval',
+    'AttemptLogError', 'MotionModel', 'Z_95', 'append_attempt', 'cleared_fraction', 'move_seconds',
+    'object_difficulty', 'rated_acceleration', 'read_attempts', 'reliability', 'sem_interval', 'summarize',
+    'wilson_interval',
 ]

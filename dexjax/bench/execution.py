@@ -1,14 +1,19 @@
 """The physics judge of a benchmark attempt: the grasp executed in MuJoCo on the simulated bin.
 
-The heap's MuJoCo model (`dexjax.sim.heap_spec`: the bin and every object as a free body of convex hulls, with the
-heap's own contact settings) gets the gripper (`dexjax.bench.gripper_bodies`), and the tool follows the pick's path
-(`dexjax.bench.tool_path`): from a pre-grasp pose ``standoff`` behind the grasp along the approach (further back, in
-5 cm steps, while the tool would start inside an object), to the grasp, grip, lift 0.2 m, transport to above the
-bin's centre, shake, hold. The approach is force-guarded, as a real cell's: it stops where the contact force
-pushing the gripper back (objects or bin) first exceeds ``guard_force`` (a suction approach may go on
-``press_depth`` past the planned point, to press the compliant cup onto the surface). Collisions with other objects and the bin are real: objects
-are pushed, and a gripper pressing on the bin harder than ``bin_force_limit`` during the approach or the grip
-fails the attempt (``collision_bin``: a real robot would stop).
+The seed's success: the robot "lifts and transports exactly one object from the heap to a receptacle". The judge:
+
+1. **Collisions** (`dexjax.bench.collision_rule`, on by default): the labels' own rule on the simulated bodies.
+   The gripper's swept solids (the reward's collision samples) may not enter an object or the bin by more than
+   the collision tolerance; if they do, the attempt fails (``collision_object`` / ``collision_bin``) before
+   anything moves, as it does in the labels.
+2. **Execution** in the heap's MuJoCo model (`dexjax.sim.heap_spec`: the bin and every object as a free body of
+   convex hulls) with the gripper (`dexjax.bench.gripper_bodies`) and a receptacle beside the bin: the tool follows
+   the pick's path (`dexjax.bench.tool_path`): from a pre-grasp pose ``standoff`` behind the grasp along the
+   approach, to the grasp, grip, lift, transport to above the receptacle at the robot model's speed and
+   acceleration, release, let fall. The approach is force-guarded, as a real cell's: it stops where the contact
+   force pushing the gripper back first exceeds ``guard_force`` (a suction approach may go on ``press_depth``
+   past the planned point, to press the compliant cup onto the surface). A gripper pressing on the bin harder than
+   ``bin_force_limit`` during the approach or the grip fails the attempt (``collision_bin``: a robot would stop).
 
 * **Parallel jaw**: the pads close with force-limited servos (the gripper's ``force_limit``); friction is the
   object's Coulomb coefficient with the soft-finger torsional friction (2/3) mu r_f (condim 4).
@@ -16,15 +21,14 @@ fails the attempt (``collision_bin``: a real robot would stop).
   suction_seal`, Dex-Net 3.0's spring model) at the actual contact: where the cup's axis meets the first object
   (a ray from inside the cup; the mouth may have pressed up to the bellows' height into it, or stopped up to the
   contact tolerance short), in the object's simulated pose, along the cup's simulated axis after the guarded
-  approach. A sealed cup holds
-  the object with a weld whose wrench is checked every step against the suction-ring limits of the same contact
-  model (spec "Linear constraint set"): the pull at most the vacuum force V, the shear and the torsion within
-  friction of the lip load (f_z + V), the bending torque within pi r kappa / sqrt 2. A limit exceeded for
-  ``seal_break_steps`` consecutive steps breaks the seal (the weld lets go): at most the vacuum force holds.
+  approach. A sealed cup holds the object with a weld to the bellows' lip, which is hinged to the hand with the
+  bellows' bending stiffness: the held object swings on the compliant bellows as on a real cup. Every step the
+  lip's wrench on the object is checked against the labels' suction-ring limits and the seal breaks on a
+  sustained violation (`dexjax.bench.suction_hold`); venting the cup at the receptacle releases the object.
 
-The verdict: success when exactly one object ends the path at least ``min_lift`` above where it started, held
-(between both pads, or sealed). Failure reasons: `PHYSICS_FAILURES`. The returned state holds every object's pose at
-the end (or where the attempt stopped): the judge disturbs the heap, and the trial lets it settle again.
+The verdict: success when exactly one object, the one gripped, ends in the receptacle. Failure reasons:
+`PHYSICS_FAILURES`. The returned state holds every object's pose at the end (or where the attempt stopped): the
+judge disturbs the heap, and the trial lets it settle again (objects in the receptacle have left the bin).
 """
 
 from __future__ import annotations
@@ -39,7 +43,9 @@ import mujoco
 import numpy as np
 
 from dexjax.bench import gripper_bodies as gb
+from dexjax.bench.collision_rule import collision_samples, gripper_collision
 from dexjax.bench.grasp_scene import GraspScene, PhysicsSettings
+from dexjax.bench.suction_hold import SealHold, seal_hold
 from dexjax.bench.tool_path import PHASES, tool_path
 from dexjax.contacts.suction import suction_seal
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
@@ -47,14 +53,17 @@ from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.quality.gripper_geometry import GripperGeometry
 from dexjax.sim.bodies import HeapObject
-from dexjax.sim.heap import HeapState
+from dexjax.sim.heap import Bin, HeapState
 
-PHYSICS_FAILURES = ('none', 'collision_bin', 'no_object', 'no_seal', 'seal_lost', 'dropped', 'multiple_objects')
-"""Failure reasons of the physics judge: the gripper pressed on the bin; nothing between the closed jaws (or under
-the cup); the analytic seal test failed at the actual contact; a suction-ring limit broke the hold; the object was
-lost during the lift, transport or shake; more than one object was lifted."""
+PHYSICS_FAILURES = ('none', 'collision_object', 'collision_bin', 'no_object', 'no_seal', 'seal_lost', 'dropped',
+                    'multiple_objects')
+"""Failure reasons of the physics judge: the gripper's swept solids enter an object (the labels' rule); the
+gripper enters or presses on the bin; nothing between the closed jaws (or under the cup); the analytic seal test
+failed at the actual contact; a suction-ring limit broke the hold; the object was lost before it reached the
+receptacle; more than one object reached the receptacle."""
 
-RING_LIMITS = ('vacuum', 'friction', 'torsion', 'bending')
+_GRIP, _LIFT, _TRANSPORT, _SHAKE, _RELEASE = (PHASES.index(p) for p in ('grip', 'lift', 'transport', 'shake',
+                                                                          'release'))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,12 +71,14 @@ class PhysicsOutcome:
   """What happened to one executed grasp.
 
   Attributes:
-    success: exactly one object lifted and held.
+    success: exactly one object, the gripped one, reached the receptacle.
     reason: ``'none'`` or one of `PHYSICS_FAILURES`.
-    target_slot: the slot of the object held (or gripped and lost; -1 for none).
+    target_slot: the slot of the object gripped (or entered, for ``collision_object``; -1 for none).
     poses: (P, 7) float64 object-frame poses of every slot at the end (unused slots unchanged).
-    detail: JSON-able numbers: ``phase`` where the attempt ended, ``lifted`` slots, for suction ``sealed``,
-      ``max_strain`` and the ``limit`` that broke the hold, ``sim_seconds`` simulated.
+    detail: JSON-able numbers: ``phase`` where the attempt ended, ``lifted`` slots (raised ``min_lift`` when
+      it ended), ``delivered`` (slots in the receptacle), ``guard_short`` (how far short of the planned grasp the
+      force guard stopped the approach, m; absent when it did not), for suction ``sealed``, ``max_strain`` and the
+      ``limit`` that broke the hold, ``sim_seconds`` simulated.
   """
 
   success: bool
@@ -80,33 +91,10 @@ class PhysicsOutcome:
 _seal = jax.jit(suction_seal)
 
 
-def ring_violation(wrench: np.ndarray, frame: np.ndarray, friction: float, gripper: SuctionGripper) -> str | None:
-  """The first suction-ring limit (`RING_LIMITS`) the cup's wrench on the object violates, or None.
-
-  The limits are those of Dex-Net 3.0's ring contact (spec, suction wrench space) without the inscribed box the
-  analytic quality linearises them with: the lip's normal load is N = f_z + V (f_z the push along the approach,
-  V the vacuum force) and must stay >= 0 (``vacuum``); the shear |f_t| <= mu N (``friction``); the torsion
-  |tau_z| <= r mu N (``torsion``); the bending torque |tau_t| <= pi r kappa (``bending``: the first harmonic of the
-  lip pressure bounded by the elastic limit kappa).
-
-  Args:
-    wrench: (6,) force (N) and torque about the contact (N m), world frame, exerted by the cup on the object.
-    frame: (3, 3) contact frame columns (x_c, y_c, z_c = approach into the object).
-    friction: Coulomb friction of the lip on the object.
-    gripper: vacuum force V, cup radius r and elastic limit kappa.
-  """
-  f, t = frame.T @ wrench[:3], frame.T @ wrench[3:]
-  v, r = float(gripper.vacuum_force), float(gripper.cup_radius)
-  load = f[2] + v
-  if load < 0.0:
-    return 'vacuum'
-  if math.hypot(f[0], f[1]) > friction * load:
-    return 'friction'
-  if abs(t[2]) > friction * r * load:
-    return 'torsion'
-  if math.hypot(t[0], t[1]) > math.pi * r * float(gripper.elastic_limit):
-    return 'bending'
-  return None
+def receptacle_centre(settings: PhysicsSettings) -> np.ndarray:
+  """(2,) the receptacle's centre beside the bin (whose centre is the origin): the motion model's transport
+  distance along +x."""
+  return np.array([settings.path.motion.transport_distance, 0.0])
 
 
 def _start(sim: GraspScene, grasp_origin: np.ndarray, approach: np.ndarray) -> np.ndarray:
@@ -125,7 +113,7 @@ def _start(sim: GraspScene, grasp_origin: np.ndarray, approach: np.ndarray) -> n
 def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], heap: HeapState, poses: np.ndarray,
                   grasp: ParallelJawGrasp | SuctionGrasp, gripper: ParallelJawGripper | SuctionGripper,
                   settings: PhysicsSettings = PhysicsSettings(), geometry: GripperGeometry = GripperGeometry(),
-                  transport_to: tuple[float, float] = (0.0, 0.0)) -> PhysicsOutcome:
+                  bin_: Bin = Bin(), collision_tolerance: float = 1e-3) -> PhysicsOutcome:
   """Executes one world-frame grasp on a heap in MuJoCo (see the module doc).
 
   Args:
@@ -135,109 +123,137 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
     poses: (P, 7) object-frame poses of the slots, world frame (xyz metres, wxyz).
     grasp: the world-frame grasp (concrete NumPy/JAX values).
     gripper: the gripper of the grasp's type.
-    settings: judge settings; geometry: the suction shaft's size.
-    transport_to: (x, y) above which the held object is carried, m (the bin's centre).
+    settings: judge settings; geometry: the gripper's collision solids (the labels'); bin_: the bin.
+    collision_tolerance: the labels' collision tolerance, m (`QualityConfig.collision_tolerance`).
   """
   grasp = jax.tree.map(np.asarray, grasp)
+  poses = np.asarray(poses, np.float64)
+  if settings.collision_check:
+    reason, slot = gripper_collision(objects, np.asarray(heap.object_ids), np.asarray(heap.mask), poses,
+                                     collision_samples(grasp, gripper, geometry), bin_, collision_tolerance)
+    if reason:
+      return PhysicsOutcome(success=False, reason=reason, target_slot=slot, poses=poses.copy(),
+                            detail={'phase': 'approach', 'sim_seconds': 0.0, 'lifted': [], 'delivered': []})
   pose = np.asarray(suction_pose(grasp) if isinstance(grasp, SuctionGrasp) else parallel_jaw_pose(grasp), np.float64)
-  sim = GraspScene(objects, heap, np.asarray(poses, np.float64), pose, grasp, gripper, settings, geometry)
+  sim = GraspScene(objects, heap, poses, pose, grasp, gripper, settings, geometry, receptacle_centre(settings), bin_)
   approach, origin = pose[:3, 0], pose[:3, 3]
   start = _start(sim, origin, approach)
   target = origin + (settings.press_depth * approach if sim.suction else 0.0)
-  path = tool_path(start, target, np.asarray(transport_to, np.float64), settings.timestep, settings.path)
+  path = tool_path(start, target, sim.receptacle, settings.timestep, settings.path)
   d, m = sim.data, sim.model
   detail: dict[str, Any] = {}
   guarded = None  # where the guard stopped the approach
   approach_end = path.phase_end('approach')
-  weld, slot, violations = -1, -1, 0
-  phase_ends = {PHASES.index(p): path.phase_end(p) for p in ('grip', 'lift', 'transport', 'shake', 'hold')}
+  weld, slot, hold = -1, -1, None
+  checks = {path.phase_end(PHASES[p]): p for p in (_GRIP, _LIFT, _TRANSPORT, _SHAKE) if path.has_phase(PHASES[p])}
   reason = None
   for i in range(len(path.positions)):
     phase = int(path.phase[i])
-    if guarded is None and phase <= 1 and sim.pushback(approach) > settings.guard_force:
+    if guarded is None and phase <= _GRIP and sim.pushback(approach) > settings.guard_force:
       # The approach stops where the tool is, backed off by ``guard_retract`` (the force sensor's reaction); the
       # rest of the path starts there.
       guarded = d.xpos[sim.hand] - settings.guard_retract * approach
+      detail['guard_short'] = round(float((target - guarded) @ approach), 5)
     if guarded is None:
       d.mocap_pos[0] = path.positions[i]
     else:
-      d.mocap_pos[0] = guarded if phase <= 1 else path.positions[i] + guarded - path.positions[approach_end]
+      d.mocap_pos[0] = guarded if phase <= _GRIP else path.positions[i] + guarded - path.positions[approach_end]
     if not sim.suction:
       d.ctrl[:] = path.grip[i] * sim.stroke
-    elif phase == 1 and 'sealed' not in detail:  # the cup has come to rest on the surface: seal or not
-      reason, weld, slot = _seal_on(sim, models, heap, gripper, detail)
+    elif phase == _GRIP and 'sealed' not in detail:  # the cup has come to rest on the surface: seal or not
+      reason, weld, slot, hold = _seal_on(sim, objects, models, heap, gripper, detail)
       if reason:
         break
+    elif phase == _RELEASE and weld >= 0:  # vent the cup over the receptacle
+      d.eq_active[weld], weld = 0, -1
     mujoco.mj_step(m, d)
-    if phase <= 1 and sim.bin_force() > settings.bin_force_limit:
+    if phase <= _GRIP and sim.bin_force() > settings.bin_force_limit:
       reason = 'collision_bin'
       break
-    if sim.suction and weld >= 0 and phase >= 2:
-      mouth, rot = sim.hand_frame()
-      contact = mouth + rot @ sim.contact_offset
-      broke = ring_violation(sim.weld_wrench(weld, slot, contact), rot[:, [1, 2, 0]], float(heap.friction[slot]),
-                             gripper)
-      violations = violations + 1 if broke else 0
-      if violations >= settings.seal_break_steps:
-        d.eq_active[weld] = 0
-        weld, detail['limit'] = -1, broke
+    if weld >= 0 and phase >= _LIFT:
+      body = m.body(f'obj{slot}').id
+      rot = d.xmat[body].reshape(3, 3)
+      broke = hold.step(sim.weld_wrench(weld, slot, hold.contact_point(rot, d.xpos[body])), rot, settings.timestep)
+      if broke:
+        d.eq_active[weld], weld = 0, -1
+        detail['limit'] = broke.split('_')[0]
         reason = 'seal_lost'
         break
-    if i == phase_ends[1] and not sim.suction:
-      gripped = sim.between_pads()
-      if not gripped:
-        reason = 'no_object'
+    if i in checks:
+      reason, slot = _check_held(sim, checks[i], slot)
+      if reason:
         break
-      slot = min(gripped)
-    if phase >= 2 and i == phase_ends[phase] and not sim.lifted():
-      reason = 'dropped'
-      break
   detail['phase'] = PHASES[int(path.phase[min(i, len(path.phase) - 1)])]
   detail['sim_seconds'] = round((i + 1) * settings.timestep, 6)
-  lifted = sim.lifted()
-  detail['lifted'] = sorted(lifted)
+  detail['lifted'] = sorted(sim.lifted())
+  delivered = sim.in_receptacle()
+  detail['delivered'] = sorted(delivered)
   if reason is None:
-    held = {slot} if sim.suction else sim.between_pads()
-    if len(lifted) > 1:
+    if len(delivered) > 1:
       reason = 'multiple_objects'
-    elif not lifted or not (held & lifted):
+    elif slot not in delivered:
       reason = 'dropped'
-    else:
-      slot = next(iter(lifted))
   return PhysicsOutcome(success=reason is None, reason=reason or 'none', target_slot=int(slot),
                         poses=sim.current_poses(), detail=detail)
 
 
-def _seal_on(sim: GraspScene, models: Sequence[ObjectModel], heap: HeapState, gripper: SuctionGripper,
-             detail: dict[str, Any]) -> tuple[str | None, int, int]:
-  """The seal test at the cup's actual contact; activates the vacuum weld when it seals.
+def _check_held(sim: GraspScene, phase: int, slot: int) -> tuple[str | None, int]:
+  """At the end of ``phase``: is the gripped object still held? (reason or None, the gripped slot)."""
+  if not sim.suction and phase == _GRIP:
+    gripped = sim.between_pads()
+    return (None, min(gripped)) if gripped else ('no_object', -1)
+  if phase == _GRIP:
+    return None, slot
+  held = slot in sim.lifted() and (sim.suction or slot in sim.between_pads())
+  return (None, slot) if held else ('dropped', slot)
 
-  Returns (failure reason or None, the weld's id or -1, the object's slot or -1).
+
+def _seal_on(sim: GraspScene, objects: Sequence[HeapObject], models: Sequence[ObjectModel], heap: HeapState,
+             gripper: SuctionGripper, detail: dict[str, Any]) -> tuple[str | None, int, int, SealHold | None]:
+  """The seal test at the cup's actual contact; activates the vacuum weld when it seals and tunes the bellows'
+  damping to the held object.
+
+  Returns (failure reason or None, the weld's id or -1, the object's slot or -1, the hold or None).
   """
   reach = gripper.cone_height + gripper.contact_tolerance
   slot, distance = sim.ray_slot(reach=reach)
   if slot < 0 or not -gripper.cone_height <= distance <= gripper.contact_tolerance:
-    return 'no_object', -1, slot
+    return 'no_object', -1, slot, None
   m, d = sim.model, sim.data
   body = m.body(f'obj{slot}').id
   rot, origin = d.xmat[body].reshape(3, 3), d.xpos[body]
-  mouth, frame = sim.hand_frame()
-  sim.contact_point = mouth + distance * frame[:, 0]  # where the cup's axis meets the surface
-  local = SuctionGrasp(center=np.asarray((sim.contact_point - origin) @ rot, np.float32),
+  mouth, frame = sim.cup_frame()
+  contact = mouth + distance * frame[:, 0]  # where the cup's axis meets the surface
+  local = SuctionGrasp(center=np.asarray((contact - origin) @ rot, np.float32),
                        approach=np.asarray(frame[:, 0] @ rot, np.float32))
-  seal = jax.device_get(_seal(models[int(heap.object_ids[slot])], local, gripper))
+  obj = int(heap.object_ids[slot])
+  seal = jax.device_get(_seal(models[obj], local, gripper))
   detail['sealed'], detail['max_strain'] = bool(seal.sealed), float(seal.max_strain)
   if not seal.sealed:
-    return 'no_seal', -1, slot
+    return 'no_seal', -1, slot, None
   eq = m.equality(f'{gb.VACUUM}_obj{slot}').id
-  rel_pos = frame.T @ (origin - mouth)  # the weld's relative pose: the object's frame in the hand's frame
-  hand_inverse, rel_quat = np.zeros(4), np.zeros(4)
-  mujoco.mju_negQuat(hand_inverse, d.xquat[sim.hand])
-  mujoco.mju_mulQuat(rel_quat, hand_inverse, d.xquat[body])
+  rel_pos = frame.T @ (origin - mouth)  # the weld's relative pose: the object's frame in the lip's frame
+  lip_inverse, rel_quat = np.zeros(4), np.zeros(4)
+  mujoco.mju_negQuat(lip_inverse, d.xquat[sim.lip])
+  mujoco.mju_mulQuat(rel_quat, lip_inverse, d.xquat[body])
   m.eq_data[eq, 3:6], m.eq_data[eq, 6:10] = rel_pos, rel_quat
   d.eq_active[eq] = 1
-  sim.contact_offset = frame.T @ (sim.contact_point - mouth)  # the contact in the hand's frame (it moves with it)
-  return None, eq, slot
+  hold = seal_hold(objects[obj], np.asarray(local.center, np.float64), np.asarray(local.approach, np.float64),
+                   float(heap.friction[slot]), gripper)
+  _tune_bellows(sim, objects[obj], rot, origin, mouth - 0.5 * gripper.cone_height * frame[:, 0], frame)
+  return None, eq, slot, hold
 
 
-__all__ = ['PHYSICS_FAILURES', 'PhysicsOutcome', 'PhysicsSettings', 'RING_LIMITS', 'execute_grasp', 'ring_violation']
+def _tune_bellows(sim: GraspScene, obj: HeapObject, rot: np.ndarray, origin: np.ndarray, pivot: np.ndarray,
+                  frame: np.ndarray) -> None:
+  """Sets each bellows hinge's damping for the held object's moment of inertia about it (a fixed damping ratio)."""
+  m = sim.model
+  com = rot @ obj.center_of_mass + origin
+  arm = com - pivot
+  inertia = rot @ obj.inertia @ rot.T
+  for name, axis in zip(gb.BELLOWS_JOINTS, (frame[:, 1], frame[:, 2])):
+    about = float(axis @ inertia @ axis + obj.mass * (arm @ arm - (arm @ axis) ** 2))
+    m.dof_damping[m.jnt_dofadr[m.joint(name).id]] = gb.bellows_damping(sim.settings.tool, about)
+
+
+__all__ = ['PHYSICS_FAILURES', 'PhysicsOutcome', 'PhysicsSettings', 'execute_grasp', 'receptacle_centre']

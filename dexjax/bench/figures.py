@@ -19,6 +19,11 @@ from matplotlib.figure import Figure  # no pyplot: drawing a figure leaves the c
 _MAX_OBJECTS = 60  # objects drawn per per-object panel (the hardest first when there are more)
 
 
+def _policy_label(name: str, entry: dict) -> str:
+  """A policy's name in the figures; the supervisor's marked as using privileged state."""
+  return name.replace('_', ' ') + (' (privileged state)' if entry.get('privileged') else '')
+
+
 def _short(name: str) -> str:
   return name if len(name) <= 28 else '...' + name[-25:]
 
@@ -43,7 +48,7 @@ def plot_reliability(results: Mapping[str, Any], path: str | os.PathLike[str]) -
     label = f'level {level}' if level not in ('None', None) else 'other objects'
     ax.bar(xs, ys, width, yerr=[lo, hi], capsize=3, label=label)
   ax.set_xticks(range(len(policies)))
-  ax.set_xticklabels([f"{name.replace('_', ' ')}\n{entry['mpph']:.0f} MPPH" + (
+  ax.set_xticklabels([f"{_policy_label(name, entry)}\n{entry['mpph']:.0f} MPPH" + (
       f"\nagreement {entry['judge_agreement']:.2f}" if entry['judge_agreement'] == entry['judge_agreement'] else '')
                       for name, entry in policies.items()], fontsize=8)
   ax.set_ylim(0, 1.05)
@@ -73,7 +78,7 @@ def plot_per_object(results: Mapping[str, Any], path: str | os.PathLike[str]) ->
       hi.append(max(0.0, counts['sem_95'][1] - counts['reliability']))
     ax.errorbar(xs, ys, xerr=[lo, hi], fmt='o', markersize=3, capsize=2)
     ax.set_xlim(-0.05, 1.05)
-    ax.set_title(name, fontsize=9)
+    ax.set_title(_policy_label(name, entry), fontsize=9)
     ax.set_xlabel('reliability')
   axes[0][0].set_yticks(range(len(order)))
   axes[0][0].set_yticklabels([_short(o) for o in order], fontsize=6)

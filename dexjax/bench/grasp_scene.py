@@ -22,7 +22,7 @@ from dexjax.bench.tool_path import PathSettings
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.quality.gripper_geometry import GripperGeometry
 from dexjax.sim.bodies import HeapObject
-from dexjax.sim.heap import HeapState
+from dexjax.sim.heap import Bin, HeapState
 from dexjax.sim.scene import SettleSettings, compile_heap, heap_slots, heap_spec
 
 _BIN_GEOMS = ('ground', 'wall0', 'wall1', 'wall2', 'wall3')
@@ -46,7 +46,11 @@ class PhysicsSettings:
       fingertip may touch the floor: the analytic reward allows 1 mm; a robot's collision detection stops it
       at a few tens of newtons).
     min_lift: an object counts as lifted when its centre of mass ends this much higher than it started, m.
-    seal_break_steps: consecutive steps over a suction-ring limit that break the seal.
+    collision_check: before executing, test the gripper's swept solids against the simulated bodies with the
+      labels' collision rule (`dexjax.bench.collision_rule`); a collision fails the attempt without simulating.
+      False: the gripper pushes whatever is in its way (a stress test, not the labels' world).
+    receptacle_half: half the inner side of the square receptacle beside the bin, m.
+    receptacle_wall: height of the receptacle's walls, m.
     path: the tool's motions (`PathSettings`).
     tool: the tool bodies' constants (`ToolSettings`).
   """
@@ -62,7 +66,9 @@ class PhysicsSettings:
   press_depth: float = 0.005
   bin_force_limit: float = 50.0
   min_lift: float = 0.1
-  seal_break_steps: int = 5
+  collision_check: bool = True
+  receptacle_half: float = 0.12
+  receptacle_wall: float = 0.08
   path: PathSettings = PathSettings()
   tool: gb.ToolSettings = gb.ToolSettings()
 
@@ -73,13 +79,14 @@ class GraspScene:
 
   def __init__(self, objects: Sequence[HeapObject], heap: HeapState, poses: np.ndarray, pose: np.ndarray,
                grasp: ParallelJawGrasp | SuctionGrasp, gripper, settings: PhysicsSettings,
-               geometry: GripperGeometry):
+               geometry: GripperGeometry, receptacle: np.ndarray, bin_: Bin = Bin()):
     self.settings, self.suction = settings, isinstance(grasp, SuctionGrasp)
     self.contact_point, self.contact_offset = None, np.zeros(3)  # suction: the sealed contact (world, hand frame)
     # No sleeping objects here: the tool moves through mocap and weld constraints, and the judge's physics was
     # validated with every object awake (settling alone lets resting objects sleep).
     spec = heap_spec(objects, heap, SettleSettings(timestep=settings.timestep, impratio=settings.impratio,
-                                                   solver_iterations=settings.solver_iterations, sleep=False))
+                                                   solver_iterations=settings.solver_iterations, sleep=False,
+                                                   bin=bin_))
     opt = spec.option
     opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     opt.noslip_iterations = settings.noslip_iterations
@@ -98,10 +105,14 @@ class GraspScene:
       tool_geoms = [gb.PALM, *gb.FINGERS]
     gb.add_gripper_pairs(spec, tool_geoms, hulls, _BIN_GEOMS,
                          (2.0 / 3.0) * float(getattr(gripper, 'finger_radius', 0.0)), settings.tool)
+    self.receptacle = np.asarray(receptacle, np.float64)
+    gb.add_receptacle(spec, self.receptacle, settings.receptacle_half, settings.receptacle_wall,
+                      bin_.wall_thickness)
     self.model = compile_heap(spec, objects, heap)
     self.data = mujoco.MjData(self.model)
     m = self.model
     self.hand = m.body(gb.HAND).id
+    self.lip = m.body(gb.LIP).id if self.suction else -1
     self.tool_geoms = np.array([m.geom(g).id for g in tool_geoms])
     self.finger_geoms = [m.geom(g).id for g in gb.FINGERS] if not self.suction else []
     self.bin_geoms = np.array([m.geom(g).id for g in _BIN_GEOMS])
@@ -177,18 +188,43 @@ class GraspScene:
       poses[s] = self.data.qpos[adr:adr + 7]
     return poses
 
-  def hand_frame(self) -> tuple[np.ndarray, np.ndarray]:
-    return self.data.xpos[self.hand].copy(), self.data.xmat[self.hand].reshape(3, 3).copy()
+  def in_receptacle(self) -> set[int]:
+    """Slots whose centre of mass lies inside the receptacle's walls, below their top."""
+    m, d = self.model, self.data
+    half, top = self.settings.receptacle_half, self.settings.receptacle_wall
+    inside = set()
+    for s in self.slots:
+      c = d.xipos[m.body(f'obj{s}').id]
+      if np.all(np.abs(c[:2] - self.receptacle) < half) and c[2] < top:
+        inside.add(int(s))
+    return inside
 
-  def ray_slot(self, reach: float) -> tuple[int, float]:
-    """(slot of the object the tool's axis meets first from ``reach`` behind the mouth, its distance past the
-    mouth (negative: behind it, the bellows compressed), m); (-1, inf) when it meets no object."""
-    origin, rot = self.hand_frame()
+  def cup_frame(self) -> tuple[np.ndarray, np.ndarray]:
+    """(the cup's mouth (3,), its frame (3, 3): columns approach, y, z), world frame: the lip body's."""
+    return self.data.xpos[self.lip].copy(), self.data.xmat[self.lip].reshape(3, 3).copy()
+
+  def ray_slot(self, reach: float, jitter: float = 2.5e-4) -> tuple[int, float]:
+    """(slot of the object the cup's axis meets first from ``reach`` behind the mouth, its distance past the
+    mouth (negative: behind it, the bellows compressed), m); (-1, inf) when it meets no object. A ray exactly
+    along an edge of a hull can slip between its faces: when the axis misses, four rays ``jitter`` beside it
+    decide (the nearest hit)."""
+    origin, rot = self.cup_frame()
+    start = origin - reach * rot[:, 0]
+    for offsets in ([np.zeros(3)], [jitter * s * rot[:, k] for k in (1, 2) for s in (1.0, -1.0)]):
+      hits = [self._ray(start + o, rot[:, 0]) for o in offsets]
+      hits = [h for h in hits if h[0] >= 0]
+      if hits:
+        slot, dist = min(hits, key=lambda h: h[1])
+        return slot, dist - reach
+    return -1, math.inf
+
+  def _ray(self, origin: np.ndarray, direction: np.ndarray) -> tuple[int, float]:
+    """(slot, distance) of the first object a ray meets, or (-1, inf)."""
     geom = np.zeros(1, np.int32)
-    dist = mujoco.mj_ray(self.model, self.data, origin - reach * rot[:, 0], rot[:, 0], None, 1, self.hand, geom)
+    dist = mujoco.mj_ray(self.model, self.data, origin, direction, None, 1, self.hand, geom)
     if dist < 0 or geom[0] < 0 or self.geom_slot[geom[0]] < 0:
       return -1, math.inf
-    return int(self.geom_slot[geom[0]]), float(dist - reach)
+    return int(self.geom_slot[geom[0]]), float(dist)
 
   def weld_wrench(self, eq: int, slot: int, contact: np.ndarray) -> np.ndarray:
     """(6,) force (N) and torque about ``contact`` (N m), world frame, that weld ``eq`` exerts on ``slot``."""

@@ -11,9 +11,12 @@ mouth):
   open at the grasp's width and a command of 1 drives them ``close_overtravel`` past the centre, so a pad that
   meets an object presses with exactly the force limit;
 * **suction**: the rigid cup body (a cylinder of the cup's radius) behind the compliant bellows (``cone_height``,
-  no collision solid: the seal model is the lip's physics) and the tool shaft behind it; the seal and
-  the vacuum hold are the judge's (`dexjax.bench.execution`): one weld ``vacuum_<body>`` between the hand and
-  each object, inactive until a seal forms on that object.
+  no collision solid: the seal model is the lip's physics) and the tool shaft behind it, on the hand; the
+  bellows is a body ``lip`` at the cup's mouth hinged to the hand about the two axes across the cup, at half the
+  bellows' height behind the mouth, with the bellows' bending stiffness and damping and its angle range
+  (`ToolSettings`). The seal and the vacuum hold are the judge's (`dexjax.bench.execution`): one weld
+  ``vacuum_<body>`` between the lip and each object, inactive until a seal forms on that object, so every load
+  on the held object reaches the hand through the compliant bellows.
 
 Gripper geoms never collide through MuJoCo's dynamic pairs (contype 2, conaffinity 0); every contact they can make
 is an explicit pair with each object hull, the floor and the walls, so a finger-object contact has the object's
@@ -35,7 +38,10 @@ from dexjax.quality.gripper_geometry import GripperGeometry
 HAND, TARGET, VACUUM = 'hand', 'tool_target', 'vacuum'
 FINGERS = ('finger_pos', 'finger_neg')
 """Names of the jaw pads' bodies (and geoms): the pad on the +y (jaw axis) side and on the -y side."""
-PALM, CUP, SHAFT = 'palm', 'cup', 'shaft'
+PALM, CUP, SHAFT, LIP = 'palm', 'cup', 'shaft', 'lip'
+BELLOWS_JOINTS = ('bellows_y', 'bellows_z')
+"""The lip's hinges: about the grasp frame's y and z axes (across the cup)."""
+RECEPTACLE = 'receptacle'
 _GRIPPER_GROUP = 2  # contype of gripper geoms; conaffinity 0: no dynamic contacts at all
 _Z_TO_X = [np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0]  # rotates a cylinder's z axis onto x
 
@@ -51,10 +57,22 @@ class ToolSettings:
     finger_damping: damping of the jaw slide joints, N s/m.
     close_overtravel: the closed command drives each pad this far past the grasp centre, m (>= force limit /
       gain, so a blocked pad presses with the full force limit).
-    weld_timeconst: time constant of the hand-to-target and vacuum welds (MuJoCo ``solref[0]``), s.
+    weld_timeconst: time constant of the hand-to-target weld (MuJoCo ``solref[0]``), s.
+    vacuum_timeconst: time constant of the vacuum weld of the lip to the held object, s (two physics steps, MuJoCo's
+      stiffest stable setting: the lip sticks to the surface; the compliance is the bellows').
     contact_timeconst: time constant of gripper contacts, s.
     bin_friction: friction of gripper-bin contacts.
     cup_body_length: length of the rigid cup body behind the compliant bellows, m.
+    bellows_stiffness: bending stiffness of the bellows, N m / rad (an estimate, no maker publishes it; see
+      docs/benchmark.md: a 20 mm silicone tube of 1.5 mm wall and 1 cm length bends at E I / L ~ 0.7 N m/rad with
+      E ~ 1.5 MPa, a convoluted bellows is one to two orders of magnitude softer; a finger tilts one by 30 degrees
+      with about 1 N at 2 cm).
+    bellows_damping_ratio: damping ratio of the bellows' bending with the held object (an estimate: silicone
+      rubber's loss factor of about 0.1-0.2 alone gives 0.05-0.1; the air the bellows pumps adds to it).
+    bellows_max_angle: the bellows' bending range, rad (about 30 degrees: the "angle compensation" bellows cups
+      are sold for; an estimate).
+    lip_mass: mass of the lip body (cup, bellows and fitting), kg (weight compensated; an estimate: a 20 mm bellows
+      cup weighs a few grams, its fitting more; lighter lips make the bellows' hinges numerically unstable at 2 ms).
   """
 
   hand_mass: float = 0.3
@@ -63,9 +81,14 @@ class ToolSettings:
   finger_damping: float = 20.0
   close_overtravel: float = 0.03
   weld_timeconst: float = 0.01
+  vacuum_timeconst: float = 0.004
   contact_timeconst: float = 0.005
   bin_friction: float = 0.5
   cup_body_length: float = 0.02
+  bellows_stiffness: float = 0.05
+  bellows_damping_ratio: float = 0.3
+  bellows_max_angle: float = 0.5
+  lip_mass: float = 0.02
 
 
 def _box(body, name: str, centre: Sequence[float], half: Sequence[float], mass: float) -> None:
@@ -118,8 +141,8 @@ def add_parallel_jaw(spec: mujoco.MjSpec, pose: np.ndarray, width: float, grippe
 
 def add_suction_cup(spec: mujoco.MjSpec, pose: np.ndarray, gripper: SuctionGripper,
                     geometry: GripperGeometry = GripperGeometry(), tool: ToolSettings = ToolSettings()) -> None:
-  """Adds the suction tool at grasp-frame ``pose`` (4, 4; x approach, origin at the cup's mouth); see
-  `add_vacuum` for its hold."""
+  """Adds the suction tool at grasp-frame ``pose`` (4, 4; x approach, origin at the cup's mouth): the hand with
+  the rigid cup body and shaft, and the bellows' ``lip`` body at the mouth; see `add_vacuum` for its hold."""
   hand = _hand(spec, pose, tool)
   h, r = gripper.cone_height, gripper.cup_radius
   # The front ``cone_height`` of the cup is the compliant bellows: no collision solid (the seal model decides what
@@ -131,6 +154,22 @@ def add_suction_cup(spec: mujoco.MjSpec, pose: np.ndarray, gripper: SuctionGripp
                 pos=[-h - tool.cup_body_length - 0.5 * geometry.shaft_length, 0.0, 0.0], quat=_Z_TO_X,
                 size=[geometry.shaft_radius, 0.5 * geometry.shaft_length, 0.0], mass=0.5 * tool.hand_mass,
                 contype=_GRIPPER_GROUP, conaffinity=0)
+  # The lip body has no geom (a ray from the cup must only meet objects); its inertia is a thin ring's.
+  ring = tool.lip_mass * r * r
+  lip = hand.add_body(name=LIP, pos=[0.0, 0.0, 0.0], gravcomp=1.0, mass=tool.lip_mass, ipos=[0.0, 0.0, 0.0],
+                      inertia=[ring, 0.5 * ring, 0.5 * ring], explicitinertial=True)
+  limit = np.degrees(tool.bellows_max_angle) if spec.compiler.degree else tool.bellows_max_angle
+  for name, axis in zip(BELLOWS_JOINTS, ([0.0, 1.0, 0.0], [0.0, 0.0, 1.0])):
+    lip.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=axis, pos=[-0.5 * h, 0.0, 0.0],
+                  stiffness=tool.bellows_stiffness, range=[-limit, limit],
+                  limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+                  damping=bellows_damping(tool, 0.5 * ring + tool.lip_mass * 0.25 * h * h))
+
+
+def bellows_damping(tool: ToolSettings, inertia: float) -> float:
+  """Damping (N m s / rad) of the bellows' hinges at ``tool.bellows_damping_ratio`` for a held ``inertia`` (kg m²,
+  about the hinge); the judge re-tunes the hinges to the object the cup holds."""
+  return 2.0 * tool.bellows_damping_ratio * float(np.sqrt(tool.bellows_stiffness * inertia))
 
 
 def add_gripper_pairs(spec: mujoco.MjSpec, gripper_geoms: Sequence[str], object_geoms: Sequence[tuple[str, float]],
@@ -152,14 +191,32 @@ def add_gripper_pairs(spec: mujoco.MjSpec, gripper_geoms: Sequence[str], object_
 
 
 def add_vacuum(spec: mujoco.MjSpec, object_bodies: Sequence[str], tool: ToolSettings = ToolSettings()) -> None:
-  """One inactive weld ``vacuum_<body>`` between the hand and each of ``object_bodies``: the vacuum hold, activated
+  """One inactive weld ``vacuum_<body>`` between the lip and each of ``object_bodies``: the vacuum hold, activated
   (with the relative pose of the moment) for the object a seal forms on."""
   for body in object_bodies:
-    weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, name=f'{VACUUM}_{body}', name1=HAND, name2=body,
+    weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, name=f'{VACUUM}_{body}', name1=LIP, name2=body,
                              objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
     weld.data = [0.0] * 10 + [1.0, 0.0]
-    weld.solref = [tool.weld_timeconst, 1.0]
+    weld.solref = [tool.vacuum_timeconst, 1.0]
 
 
-__all__ = ['CUP', 'FINGERS', 'HAND', 'PALM', 'SHAFT', 'TARGET', 'ToolSettings', 'VACUUM', 'add_gripper_pairs',
-           'add_parallel_jaw', 'add_suction_cup', 'add_vacuum', 'rotation_quat']
+def add_receptacle(spec: mujoco.MjSpec, centre: Sequence[float], inner_half: float, wall_height: float,
+                   wall_thickness: float) -> list[str]:
+  """Adds the receptacle beside the bin: four walls of a square box on the ground around (x, y) ``centre`` (its
+  floor is the ground plane); returns the walls' geom names."""
+  names = []
+  x, y = float(centre[0]), float(centre[1])
+  out = inner_half + 0.5 * wall_thickness
+  for k, (dx, dy, hx, hy) in enumerate(((out, 0.0, 0.5 * wall_thickness, inner_half + wall_thickness),
+                                        (-out, 0.0, 0.5 * wall_thickness, inner_half + wall_thickness),
+                                        (0.0, out, inner_half, 0.5 * wall_thickness),
+                                        (0.0, -out, inner_half, 0.5 * wall_thickness))):
+    names.append(f'{RECEPTACLE}{k}')
+    spec.worldbody.add_geom(name=names[-1], type=mujoco.mjtGeom.mjGEOM_BOX, pos=[x + dx, y + dy, 0.5 * wall_height],
+                            size=[hx, hy, 0.5 * wall_height], rgba=[0.6, 0.5, 0.3, 1.0])
+  return names
+
+
+__all__ = ['BELLOWS_JOINTS', 'CUP', 'FINGERS', 'HAND', 'LIP', 'PALM', 'RECEPTACLE', 'SHAFT', 'TARGET', 'ToolSettings',
+           'VACUUM', 'add_gripper_pairs', 'add_parallel_jaw', 'add_receptacle', 'add_suction_cup', 'add_vacuum',
+           'bellows_damping', 'rotation_quat']

@@ -6,8 +6,9 @@ objects (None: untouched).
 
 * `analytic_judge`: the seed's reward S(x, u) on the true bin (`dexjax.bench.analytic_verdict`): the labels' own
   definition; it never disturbs the heap.
-* `physics_judge`: the grasp executed in MuJoCo (`dexjax.bench.execute_grasp`): approach, grip, lift, transport,
-  shake; it pushes objects around, and what it leaves is the next state.
+* `physics_judge`: the grasp executed in MuJoCo (`dexjax.bench.execute_grasp`): the labels' collision rule, then
+  approach, grip, lift, transport to the receptacle, release; it pushes objects around, and what it leaves is the
+  next state.
 """
 
 from __future__ import annotations
@@ -64,17 +65,20 @@ def analytic_judge(world: PickingWorld, known_mass: bool = False) -> Judge:
 
 
 def physics_judge(world: PickingWorld, settings: PhysicsSettings = PhysicsSettings()) -> Judge:
-  """The physics judge of ``world``: the grasp executed in MuJoCo with the world's grippers and objects; the
-  held object is carried above the bin's centre (a dropped one falls back into the bin)."""
+  """The physics judge of ``world``: the grasp executed in MuJoCo with the world's grippers, objects and bin, the
+  labels' collision rule and tolerance; the held object is carried to the receptacle beside the bin (a dropped
+  one falls back into the bin). A collision leaves the bin untouched (state None)."""
   def judge(key: jax.Array, action: GraspAction, camera: Camera, state: BinState):
     del key  # deterministic
     grasp = jax.device_get(world_grasp(action, camera))
     params = world.params
     gripper = params.suction if action.gripper_name == 'suction' else params.parallel_jaw
+    quality = params.reward.quality
     out = execute_grasp(world.bodies, world.models, world.heap_state(state), state.poses, grasp, gripper, settings,
-                        params.reward.quality.geometry)
+                        quality.geometry, params.bin, quality.collision_tolerance)
     verdict = Verdict(success=out.success, target_slot=out.target_slot, reason=out.reason, detail=out.detail)
-    return verdict, dataclasses.replace(state, poses=out.poses)
+    moved = out.detail['sim_seconds'] > 0
+    return verdict, (dataclasses.replace(state, poses=out.poses) if moved else None)
   return judge
 
 

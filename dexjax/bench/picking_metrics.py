@@ -20,6 +20,8 @@ from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
+from dexjax.grippers import STANDARD_GRAVITY, SUCTION_PAYLOAD_KG, SUCTION_SAFETY_FACTOR
+
 Z_95 = 1.959963984540054
 """The standard normal quantile of a two-sided 95 % interval."""
 
@@ -48,15 +50,35 @@ def wilson_interval(successes: int, attempts: int, z: float = Z_95) -> tuple[flo
   return (max(0.0, centre - half), min(1.0, centre + half))
 
 
+#: Peak speed and peak acceleration of a minimum-jerk move of distance D and duration T, in units of D / T and
+#: D / T²: s(tau) = 10 tau³ - 15 tau⁴ + 6 tau⁵ has s' <= 15/8 (at tau = 1/2) and |s''| <= 10 / sqrt(3).
+MIN_JERK_PEAK_SPEED = 15.0 / 8.0
+MIN_JERK_PEAK_ACCELERATION = 10.0 / math.sqrt(3.0)
+
+
 def move_seconds(distance: float, speed: float, acceleration: float) -> float:
-  """Time (s) of a straight point-to-point move of ``distance`` (m) starting and ending at rest, with a
-  trapezoidal speed profile of top speed ``speed`` (m/s) and ``acceleration`` (m/s²) (triangular when short)."""
+  """Time (s) of a straight point-to-point move of ``distance`` (m) starting and ending at rest along the
+  minimum-jerk profile (Flash and Hogan 1985; smooth, as the robot's jerk-limited path planner) whose peak speed
+  is at most ``speed`` (m/s) and peak acceleration at most ``acceleration`` (m/s²)."""
   if distance <= 0.0:
     return 0.0
-  ramp = speed * speed / acceleration  # distance spent accelerating and braking at full speed
-  if distance <= ramp:
-    return 2.0 * math.sqrt(distance / acceleration)
-  return 2.0 * speed / acceleration + (distance - ramp) / speed
+  return max(MIN_JERK_PEAK_SPEED * distance / speed, math.sqrt(MIN_JERK_PEAK_ACCELERATION * distance / acceleration))
+
+
+def rated_acceleration(payload: float = SUCTION_PAYLOAD_KG, safety: float = SUCTION_SAFETY_FACTOR,
+                       friction: float = 0.8) -> float:
+  """The largest tool acceleration (m/s²) at which a suction cup of ``payload`` kg (vacuum force payload x g) still
+  holds the heaviest object it is rated for (payload / ``safety``) at its centre, within the labels' suction-ring
+  limits (`dexjax.contacts.ring_limit_excess`), carried rigidly:
+
+  * vertically (Schmalz's load case I, F = m (g + a)): the lip load V - m (g + a) stays >= 0, a <= g (S - 1);
+  * horizontally (load case II, with the ring model's friction box): the shear m a stays within
+    mu (V - m g) / sqrt(3), a <= mu g (S - 1) / sqrt(3).
+
+  The seed's cup (0.9 kg, S = 1.5) with the seed's mean friction 0.8 gives min(4.9, 2.27) = 2.27 m/s².
+  """
+  vertical = STANDARD_GRAVITY * (safety - 1.0)
+  return min(vertical, friction * vertical / math.sqrt(3.0))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,23 +87,28 @@ class MotionModel:
 
   The tool moves from a home pose ``approach_height`` above the bin floor to the grasp, closes the gripper (or
   builds the vacuum), lifts ``lift_height``, transports ``transport_distance`` to the receptacle beside the bin,
-  releases and returns home; each straight move follows `move_seconds` with ``tool_speed`` and
-  ``acceleration``. The final approach and the lift move at ``slow_speed`` (a cautious contact phase). A failed
+  releases and returns home; each straight move follows `move_seconds` (minimum jerk) within ``tool_speed``
+  and ``acceleration``. The final approach and the lift move at ``slow_speed`` (a cautious contact phase). A failed
   attempt costs the same path (the robot completes its motion; the seed counts every attempt).
 
   Attributes:
-    tool_speed: top tool speed, m/s (the YuMi's 1.5).
-    acceleration: tool acceleration, m/s² (assumed: full speed in 0.3 s).
-    slow_speed: top speed of the final approach and the lift, m/s.
-    approach_height: height of the home pose above the grasp, m.
-    approach_distance: length of the slow final approach along the grasp axis, m.
-    lift_height: lift after grasping, m (the benchmark's lift).
-    transport_distance: grasp to receptacle, m (bin centre to a receptacle at its side).
-    actuation_seconds: gripper close / vacuum on, and again to release, s each.
+    tool_speed: top tool speed, m/s (the seed: the YuMi's maximum tool speed, 1.5).
+    acceleration: peak tool acceleration, m/s² (`rated_acceleration`, 2.27): the fastest a cell may move the
+      heaviest object the seed's cup is rated for (its 0.9 kg payload over the safety factor 1.5 that suction makers
+      size cups with) without leaving the labels' own suction-ring limits. The YuMi itself accelerates its tool up
+      to 11 m/s² (ABB's IRB 14000 data sheet; not re-checked here: no network); a cell moves a held object no
+      faster than its gripper's rating allows (RAPID's ``AccSet`` lowers the acceleration for such loads).
+    slow_speed: top speed of the final approach and the lift, m/s (a guess: a cautious contact phase; no source).
+    approach_height: height of the home pose above the grasp, m (a guess).
+    approach_distance: length of the slow final approach along the grasp axis, m (the pre-grasp standoff).
+    lift_height: lift after grasping, m (clears the 10 cm bin walls with any object of the sets).
+    transport_distance: bin centre to the receptacle beside the bin, m (the Dex-Net lab's YuMi driver, yumipy's
+      ``YuMiConstants``, drops objects about 0.47 m from the bin's centre; 0.4 m keeps it within reach here).
+    actuation_seconds: gripper close / vacuum on, and again to release, s each (a guess).
   """
 
   tool_speed: float = 1.5
-  acceleration: float = 5.0
+  acceleration: float = rated_acceleration()
   slow_speed: float = 0.25
   approach_height: float = 0.3
   approach_distance: float = 0.05
@@ -95,7 +122,8 @@ class MotionModel:
     slow = lambda d: move_seconds(d, self.slow_speed, self.acceleration)
     return (fast(self.approach_height - self.approach_distance) + slow(self.approach_distance)
             + self.actuation_seconds + slow(self.lift_height) + fast(self.transport_distance)
-            + self.actuation_seconds + fast(math.hypot(self.transport_distance, self.approach_height - self.lift_height)))
+            + self.actuation_seconds
+            + fast(math.hypot(self.transport_distance, self.approach_height - self.lift_height)))
 
 
 def _agreement(records: Sequence[Mapping[str, Any]]) -> tuple[float, int]:
@@ -113,13 +141,31 @@ def _counts(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
           'sem_95': [lo, hi], 'wilson_95': [wlo, whi]}
 
 
+def cleared_fraction(records: Sequence[Mapping[str, Any]]) -> float:
+  """The mean over trials of the fraction of the bin's objects picked (successes / objects at the start); NaN
+  without trials. Records need ``trial``, ``success`` and ``objects_at_start``."""
+  trials: dict[Any, list[Mapping[str, Any]]] = defaultdict(list)
+  for r in records:
+    trials[r['trial']].append(r)
+  fractions = [sum(bool(r['success']) for r in rows) / rows[0]['objects_at_start'] for rows in trials.values()
+               if rows[0].get('objects_at_start')]
+  return sum(fractions) / len(fractions) if fractions else math.nan
+
+
 def summarize(records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
   """Per-policy results of attempt records: ``{policy: {reliability, mpph, attempts, successes,
-  judge_agreement, judged_by_both, seconds_per_attempt, plan_seconds, per_level: {level: counts},
-  per_object: {object: counts}}}`` (counts: attempts, successes, reliability, sem_95, wilson_95)."""
+  judge_agreement, judged_by_both, seconds_per_attempt, plan_seconds, cleared, repeated_attempts,
+  per_level: {level: counts}, per_object: {object: counts}}}`` (counts: attempts, successes, reliability, sem_95,
+  wilson_95). ``cleared``: `cleared_fraction`; ``repeated_attempts``: attempts that repeat an earlier failure of
+  their trial (`dexjax.bench.repeated_attempts`)."""
+  from dexjax.bench.failure_memory import repeated_attempts  # pylint: disable=g-import-not-at-top (NumPy)
+  records = list(records)
+  repeats = repeated_attempts(records)
   by_policy: dict[str, list[Mapping[str, Any]]] = defaultdict(list)
-  for r in records:
+  repeated: dict[str, int] = defaultdict(int)
+  for r, repeat in zip(records, repeats):
     by_policy[r['policy']].append(r)
+    repeated[r['policy']] += repeat
   out = {}
   for policy, rows in sorted(by_policy.items()):
     entry = _counts(rows)
@@ -129,6 +175,8 @@ def summarize(records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     entry['seconds_per_attempt'] = total / len(rows)
     entry['plan_seconds'] = plan / len(rows)
     entry['judge_agreement'], entry['judged_by_both'] = _agreement(rows)
+    entry['cleared'] = cleared_fraction(rows)
+    entry['repeated_attempts'] = repeated[policy]
     entry['per_level'] = {str(level): _counts([r for r in rows if r['level'] == level])
                           for level in sorted({r['level'] for r in rows}, key=str)}
     entry['per_object'] = {name: _counts([r for r in rows if r['object'] == name])
@@ -152,5 +200,5 @@ def object_difficulty(summary: Mapping[str, Mapping[str, Any]]) -> dict[str, dic
   return dict(sorted(out.items(), key=lambda kv: (kv[1]['reliability'], kv[0])))
 
 
-__all__ = ['MotionModel', 'Z_95', 'move_seconds', 'object_difficulty', 'reliability', 'sem_interval', 'summarize',
-           'wilson_interval']
+__all__ = ['MIN_JERK_PEAK_ACCELERATION', 'MIN_JERK_PEAK_SPEED', 'MotionModel', 'Z_95', 'cleared_fraction', 'move_seconds',
+           'object_difficulty', 'rated_acceleration', 'reliability', 'sem_interval', 'summarize', 'wilson_interval']

@@ -25,12 +25,13 @@ from typing import Any
 
 from dexjax.bench.attempt_log import append_attempt, read_attempts
 from dexjax.bench.execution import PhysicsSettings
+from dexjax.bench.failure_memory import FailureMemory
 from dexjax.bench.judges import analytic_judge, physics_judge
 from dexjax.bench.picking_metrics import MotionModel, object_difficulty, summarize
 from dexjax.bench.protocol import Protocol
 from dexjax.config import plain_json
 from dexjax.generate.config import GenerateConfig
-from dexjax.policy.presets import POLICY_NAMES
+from dexjax.policy.presets import POLICY_NAMES, PRIVILEGED_POLICIES
 
 JUDGES = ('physics', 'analytic')
 
@@ -55,8 +56,9 @@ class BenchmarkSpec:
     cem: CEM preset (``'seed'`` or ``'gqcnn'``).
     seed: the benchmark's seed (bins, cameras and every attempt's keys).
     known_mass: the analytic judge uses each object's simulated mass (see `analytic_judge`).
-    physics: the physics judge's settings.
-    motion: the robot-time model of picks per hour.
+    physics: the physics judge's settings; its robot model (``physics.path.motion``) also times the attempts
+      for picks per hour.
+    memory: the policies' memory of failed grasps (`FailureMemory`; off by default, as the seed's protocol).
   """
 
   policies: tuple[str, ...]
@@ -68,7 +70,12 @@ class BenchmarkSpec:
   seed: int = 0
   known_mass: bool = False
   physics: PhysicsSettings = PhysicsSettings()
-  motion: MotionModel = MotionModel()
+  memory: FailureMemory = FailureMemory()
+
+  @property
+  def motion(self) -> MotionModel:
+    """The robot model of the physics judge's path and of picks per hour."""
+    return self.physics.path.motion
 
   def validate(self) -> BenchmarkSpec:
     """Raises ValueError naming the field and the expected value."""
@@ -82,6 +89,8 @@ class BenchmarkSpec:
     if self.judge not in JUDGES:
       raise ValueError(f'judge: expected one of {", ".join(JUDGES)}, got {self.judge!r}')
     self.protocol.validate()
+    self.memory.validate()
+    self.physics.path.validate()
     return self
 
   def settings_json(self) -> dict[str, Any]:
@@ -92,7 +101,7 @@ class BenchmarkSpec:
     return {'policies': list(self.policies), 'objects': list(self.config.objects.sources),
             'protocol': dataclasses.asdict(self.protocol), 'judge': self.judge, 'model': model, 'cem': self.cem,
             'seed': self.seed, 'known_mass': self.known_mass, 'physics': plain_json(dataclasses.asdict(self.physics)),
-            'motion': dataclasses.asdict(self.motion), 'config_fingerprint': digest}
+            'memory': dataclasses.asdict(self.memory), 'config_fingerprint': digest}
 
 
 def benchmark_noise() -> Any:
@@ -133,8 +142,9 @@ def _worker_state(spec: BenchmarkSpec, cache_dir: str | None) -> dict[str, Any]:
     plan = jax.jit(plan_grasp)
     planners = {}
     for name in spec.policies:
-      policy = make_policy(name, models if uses_models(name) else {}, cem=spec.cem)
-      planners[name] = functools.partial(lambda key, obs, policy: plan(key, obs, policy), policy=policy)
+      policy = make_policy(name, models if uses_models(name) else {}, cem=spec.cem, world=world)
+      privileged = getattr(policy, 'privileged', False)  # the supervisor plans on the true bin (run_trial)
+      planners[name] = policy if privileged else functools.partial(lambda key, obs, p: plan(key, obs, p), p=policy)
     judges = {'analytic': analytic_judge(world, known_mass=spec.known_mass),
               'physics': physics_judge(world, spec.physics)}
     _WORKER.update(key=key, world=world, planners=planners, judges=judges)
@@ -159,7 +169,7 @@ def _trial_task(spec: BenchmarkSpec, log_path: str, cache_dir: str | None, appen
     state = _worker_state(spec, cache_dir)
     records = run_trial(state['world'], state['planners'][policy], state['judges'], policy=policy, trial=trial,
                         seed=spec.seed, advance_by=spec.judge, protocol=spec.protocol, motion=spec.motion,
-                        log_path=log_path if append else None, logged=logged)
+                        log_path=log_path if append else None, logged=logged, memory=spec.memory)
   return {'records': [] if append else records[len(logged):], 'attempts': len(records)}
 
 
@@ -251,7 +261,8 @@ def run_benchmark(spec: BenchmarkSpec, out_dir: str | os.PathLike[str], *, worke
 
 def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: dict[str, Any]) -> dict[str, Any]:
   """results.json's content: per-policy metrics (`summarize`) with the mean seconds per attempt of each stage
-  (render, plan, each judge, settle), how trials ended and each judge's failure reasons; object difficulty; the
+  (render, plan, each judge, settle), how trials ended, each judge's failure reasons and whether the policy used
+  privileged state; object difficulty (over the policies without privileged state, when there are any); the
   settings."""
   policies = summarize(records)
   ends: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
@@ -272,7 +283,9 @@ def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: 
     entry['trial_ends'] = dict(ends[name])
     entry['failure_reasons'] = reasons.get(name, {})
     entry['trials_finished'] = sum(ends[name].values())
-  return {'policies': policies, 'object_difficulty': object_difficulty(policies), 'config': settings}
+    entry['privileged'] = name in PRIVILEGED_POLICIES
+  deployable = {k: v for k, v in policies.items() if not v['privileged']} or policies
+  return {'policies': policies, 'object_difficulty': object_difficulty(deployable), 'config': settings}
 
 
 __all__ = ['BENCHMARK_NOISE_SETTINGS', 'BenchmarkSpec', 'JUDGES', 'benchmark_config', 'benchmark_noise', 'LOG_FILE', 'RESULTS_FILE', 'SETTINGS_FILE', 'check_objects', 'pairs',

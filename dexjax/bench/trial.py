@@ -9,7 +9,8 @@ a trial killed at any point resumes from its last logged attempt with identical 
 the seed, trial and attempt number; only measured times differ).
 
 Judges: `dexjax.bench.judges` (``judge(key, action, camera, state) -> (Verdict, state_after or None)``); a
-*planner* is ``planner(key, observation) -> GraspAction`` (concrete).
+*planner* is ``planner(key, observation) -> GraspAction`` (concrete), or a policy with ``privileged = True`` (the
+supervisor, `dexjax.bench.SupervisorPolicy`) that also reads the true bin.
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ from typing import Any
 import jax
 import numpy as np
 
+from dexjax.bench.analytic_judge import world_grasp
 from dexjax.bench.attempt_log import append_attempt
+from dexjax.bench.failure_memory import FailureMemory, excluded_pixels, remembered_failures
 from dexjax.bench.judges import Judge, Verdict
 from dexjax.bench.picking_metrics import MotionModel
 from dexjax.bench.protocol import Protocol, stop_reason
@@ -57,16 +60,29 @@ def _aimed_slot(action: GraspAction, segmentation: np.ndarray) -> int:
   return int(segmentation[v, u]) if 0 <= v < h and 0 <= u < w and segmentation[v, u] >= 0 else -1
 
 
-def _plan(planner: Planner, key: jax.Array, depth: np.ndarray, camera: Camera,
-          background: np.ndarray) -> tuple[GraspAction | None, float]:
-  """(the planned action, or None when nothing could be planned; planning seconds incl. preprocessing)."""
+def _plan(planner: Planner, key: jax.Array, depth: np.ndarray, camera: Camera, background: np.ndarray,
+          excluded: np.ndarray) -> tuple[GraspAction | None, float]:
+  """(the planned action, or None when nothing could be planned; planning seconds incl. preprocessing). No grasp
+  is centred on an ``excluded`` (H, W) pixel (the failure memory)."""
   start = time.perf_counter()
   try:
     obs, _ = prepare_observation(depth, camera, background=background)
   except ValueError:  # no object pixel left (or no valid pixel): nothing to plan on
     return None, time.perf_counter() - start
+  if excluded.any():
+    obs = obs.replace(mask=obs.mask & ~jax.numpy.asarray(excluded))
   action = jax.device_get(planner(key, obs))
   return (action if bool(action.valid) else None), time.perf_counter() - start
+
+
+def _planner_of(planner: Any, world: PickingWorld, state: BinState, camera: Camera,
+                segmentation: np.ndarray) -> Planner:
+  """``planner`` itself, or, for a policy that reads the true bin (``privileged``, the supervisor), the planner
+  of this attempt's state."""
+  if not getattr(planner, 'privileged', False):
+    return planner
+  from dexjax.bench.supervisor_policy import plan_privileged  # pylint: disable=g-import-not-at-top
+  return lambda key, obs: plan_privileged(planner, world, key, obs, state, camera, segmentation)
 
 
 def _action_fields(action: GraspAction | None) -> dict[str, Any]:
@@ -79,7 +95,8 @@ def _action_fields(action: GraspAction | None) -> dict[str, Any]:
 def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge], *, policy: str, trial: int,
               seed: int = 0, advance_by: str = 'analytic', protocol: Protocol = Protocol(),
               motion: MotionModel = MotionModel(), log_path: str | os.PathLike[str] | None = None,
-              logged: Sequence[Mapping[str, Any]] = ()) -> list[dict[str, Any]]:
+              logged: Sequence[Mapping[str, Any]] = (), memory: FailureMemory = FailureMemory()
+              ) -> list[dict[str, Any]]:
   """Runs (or resumes) trial ``trial`` of ``policy``; returns all its attempt records.
 
   Args:
@@ -93,6 +110,7 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
     motion: robot motion-time model (recorded per attempt for picks per hour).
     log_path: attempts are appended here as they end (`dexjax.bench.append_attempt`); None: not logged.
     logged: this trial's records already in the log (from a killed run); the trial continues after them.
+    memory: the policy's memory of failed grasps (`FailureMemory`; off by default).
 
   Raises:
     ValueError: ``advance_by`` is not a judge, or the protocol is invalid.
@@ -108,16 +126,21 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
   background = world.empty_bin(camera)
   if records:
     state = BinState.from_json(records[-1]['state'])
-    failures = records[-1]['consecutive_failures']
+    failures, start_count = records[-1]['consecutive_failures'], records[-1]['objects_at_start']
   else:
     state, failures = world.fill(jax.random.fold_in(key, 0), protocol.objects_per_trial), 0
+    start_count = state.count
+  memory.validate()
   attempt = len(records)
   while stop_reason(state.count, attempt, failures, protocol) is None:
     k_noise, k_plan, k_judge = _attempt_keys(key, attempt)
     clock = time.perf_counter()
     depth, segmentation = world.observe(k_noise, state, camera)
     stages = {'render': time.perf_counter() - clock}
-    action, plan_seconds = _plan(planner, k_plan, depth, camera, background)
+    excluded = excluded_pixels(depth, camera, remembered_failures(records, memory), memory.radius)
+    visible = np.where(excluded, -1, segmentation)  # what a privileged planner may aim at
+    action, plan_seconds = _plan(_planner_of(planner, world, state, camera, visible), k_plan, depth, camera,
+                                 background, excluded)
     stages['plan'] = plan_seconds
     verdicts: dict[str, Verdict] = {}
     after: BinState | None = None
@@ -146,6 +169,8 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
     attempt += 1
     stop = stop_reason(state.count, attempt, failures, protocol)
     record = {'policy': policy, 'trial': trial, 'attempt': attempt - 1, **_action_fields(action),
+              'world_center': None if action is None else np.asarray(world_grasp(action, camera).center).tolist(),
+              'objects_at_start': start_count,
               'judge': advance_by, 'success': chosen.success, 'reason': chosen.reason,
               'verdicts': {n: {'success': v.success, 'reason': v.reason, 'target_slot': v.target_slot, **v.detail}
                            for n, v in verdicts.items()},

@@ -87,11 +87,12 @@ class PickingWorld:
     names: the N usable objects' names; `BinState.object_ids` index into this list.
     levels: the N objects' difficulty levels (1-3 for procedural objects of that level, else None).
     rejected: object sources or files that could not be used, with reasons.
+    cache_dir: the object cache the world was built from (None: the default), also the supervisor's grasp sets'.
     params: the analytic reward's `LabelParams` (grippers, perturbations, reward settings, bin).
   """
 
   def __init__(self, config: GenerateConfig, *, cache_dir: str | os.PathLike[str] | None = None):
-    self.config = config
+    self.config, self.cache_dir = config, cache_dir
     prepared, self.rejected = usable_objects(config, cache_dir)
     self.names = [p.name for p in prepared]
     self.levels = [object_level(name) for name in self.names]

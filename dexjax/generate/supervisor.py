@@ -388,14 +388,16 @@ def _over_slots(candidate, sets_pk: GraspSet, *args):
   return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), out)
 
 
-def _collision_free(images, passed: jax.Array, collides, key: jax.Array | None, max_checked: int) -> jax.Array:
+def _collision_free(images, passed: jax.Array, collides, key: jax.Array | None, max_checked: int,
+                    scores: jax.Array | None = None) -> jax.Array:
   """(C,) bool: ``passed`` and collision-free. With a ``key``, only ``max_checked`` of the passed grasps, drawn
   uniformly without replacement (Gumbel top-k), are tested (the others come out False): picking uniformly among
-  the collision-free ones of a uniform subset picks uniformly among all collision-free grasps."""
-  if key is None or max_checked >= passed.shape[0]:
+  the collision-free ones of a uniform subset picks uniformly among all collision-free grasps. With ``scores``
+  (C,) instead, the ``max_checked`` passed grasps of highest score are tested (best first)."""
+  if scores is None and (key is None or max_checked >= passed.shape[0]):
     return passed & ~jax.vmap(collides)(images)
-  scores = jnp.where(passed, jax.random.gumbel(key, passed.shape), -jnp.inf)
-  top, idx = jax.lax.top_k(scores, max_checked)
+  rank = jax.random.gumbel(key, passed.shape) if scores is None else scores
+  top, idx = jax.lax.top_k(jnp.where(passed, rank, -jnp.inf), min(max_checked, passed.shape[0]))
   free = jnp.isfinite(top) & ~jax.vmap(collides)(jax.tree.map(lambda a: a[idx], images))
   return jnp.zeros_like(passed).at[idx].set(free)
 
@@ -403,7 +405,7 @@ def _collision_free(images, passed: jax.Array, collides, key: jax.Array | None, 
 def parallel_jaw_supervisor_candidates(
     sets_pk: GraspSet, scene: HeapScene, bin_: Bin, camera: Camera, mask: jax.Array,
     params: SupervisorParams = SupervisorParams(), gripper: ParallelJawGripper = ParallelJawGripper(),
-    reward_params: RewardParams = RewardParams(), key: jax.Array | None = None
+    reward_params: RewardParams = RewardParams(), key: jax.Array | None = None, best_first: bool = False
 ) -> tuple[ImageParallelJawGrasp, jax.Array]:
   """The parallel-jaw set grasps of one heap as image grasps of one camera, and which the supervisor may pick.
 
@@ -426,6 +428,8 @@ def parallel_jaw_supervisor_candidates(
       sampling, shared with the heap reward.
     key: with a PRNG key, the collision test runs on ``params.max_checked`` grasps drawn uniformly among
       those passing the other tests (the rest are not eligible); None tests all P K.
+    best_first: instead, the collision test runs on the ``params.max_checked`` grasps of highest quality passing
+      the other tests (static; the supervisor as a policy, `dexjax.bench.SupervisorPolicy`).
 
   Returns:
     (`ImageParallelJawGrasp` with leading axis P K, eligible (P K,) bool).
@@ -433,14 +437,15 @@ def parallel_jaw_supervisor_candidates(
   images, passed = _over_slots(_jaw_candidate, sets_pk, scene, camera, mask, params)
   collides = lambda g: jnp.any(jnp.stack(parallel_jaw_collisions(parallel_jaw_grasp_3d(camera, g), scene, bin_,
                                                                  gripper, reward_params)))
-  return images, _collision_free(images, passed, collides, key, params.max_checked)
+  scores = sets_pk.quality.reshape(-1) if best_first else None
+  return images, _collision_free(images, passed, collides, key, params.max_checked, scores)
 
 
 def suction_supervisor_candidates(
     sets_pk: GraspSet, scene: HeapScene, bin_: Bin, camera: Camera, mask: jax.Array,
     params: SupervisorParams = SupervisorParams(), gripper: SuctionGripper = SuctionGripper(),
     reward_params: RewardParams = RewardParams(), depth: jax.Array | None = None,
-    key: jax.Array | None = None) -> tuple[ImageSuctionGrasp, jax.Array]:
+    key: jax.Array | None = None, best_first: bool = False) -> tuple[ImageSuctionGrasp, jax.Array]:
   """The suction set grasps of one heap as image grasps of one camera, and which the supervisor may pick.
 
   As `parallel_jaw_supervisor_candidates`, with angle and approach angle from the camera-frame approach
@@ -448,12 +453,13 @@ def suction_supervisor_candidates(
   `suction_collisions` of `suction_grasp_3d` of the image grasp. Visibility: the mask at the centre pixel must
   show the grasp's slot, which rules out targets hidden by other objects; a target hidden by another part of
   its own object passes this test, so pass the rendered ``depth`` (H, W) metres to also require the target's
-  camera-frame z within ``params.depth_tolerance`` of the rendered depth there. ``key``: as there.
+  camera-frame z within ``params.depth_tolerance`` of the rendered depth there. ``key``, ``best_first``: as there.
   """
   images, passed = _over_slots(_suction_candidate, sets_pk, scene, camera, mask, depth, params)
   collides = lambda g: jnp.any(jnp.stack(suction_collisions(suction_grasp_3d(camera, g), scene, bin_, gripper,
                                                             reward_params)))
-  return images, _collision_free(images, passed, collides, key, params.max_checked)
+  scores = sets_pk.quality.reshape(-1) if best_first else None
+  return images, _collision_free(images, passed, collides, key, params.max_checked, scores)
 
 
 def choose_supervisor_grasp(key: jax.Array, eligible: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -8,6 +8,7 @@
 | ``random`` | a uniformly random gripper and candidate (its predicted probability reported if a model is given) | none |
 | ``suction_heuristic`` | suction planarity-centroid ranking (Dex-Net 3.0's baseline) | none |
 | ``composite_heuristic`` | the suction or the parallel-jaw force-closure heuristic, by a fixed rule | none |
+| ``supervisor`` | the best robust grasp in the true bin (privileged state: the benchmark's ceiling) | none |
 
 The samplers are the ones that drew the training candidates (`dexjax.generate` defaults: the Dex-Net 4.0 values),
 with their border widened, if needed, so a model's rotated crop window stays inside the image:
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import Any
 
 from dexjax.models.saved import GraspQualityModel
 from dexjax.policy.cem import CEMParams, CEMPolicy
@@ -30,7 +32,9 @@ from dexjax.policy.scorers import GRIPPERS, PARALLEL_JAW, SUCTION, GQCNNScorer
 from dexjax.sampling.image_samplers import AntipodalImageSampler, SuctionImageSampler
 
 POLICY_NAMES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 'suction_heuristic',
-                'composite_heuristic')
+                'composite_heuristic', 'supervisor')
+PRIVILEGED_POLICIES = ('supervisor',)
+"""Policies that read the true state of a simulated bin, not only the image: benchmark-only references."""
 CEM_PRESETS = ('seed', 'gqcnn')
 CEM_POLICIES = ('ambidextrous', 'parallel_jaw', 'suction')
 RANKING_CANDIDATES = 400
@@ -77,7 +81,7 @@ def _window(models: Mapping[str, GraspQualityModel], gripper: str) -> int:
 
 
 def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None, *, cem: str = 'seed',
-                num_candidates: int = RANKING_CANDIDATES, polish: PolishParams | None = None):
+                num_candidates: int = RANKING_CANDIDATES, polish: PolishParams | None = None, world: Any = None):
   """The policy ``name`` (see the module table) as a pytree to pass to `dexjax.policy.plan_grasp`.
 
   Args:
@@ -88,12 +92,24 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
     num_candidates: candidates per gripper of the ranking, random and heuristic policies.
     polish: None, or `PolishParams`: the CEM policies polish their best grasps by gradient ascent on the GQ-CNN
       (`dexjax.policy.polish`).
+    world: the `dexjax.bench.PickingWorld` a privileged policy (``supervisor``) reads the true bin of.
+
+  Returns:
+    A pytree for `dexjax.policy.plan_grasp`, or for ``supervisor`` a `dexjax.bench.SupervisorPolicy` (its planner
+    needs the bin's true state: `dexjax.bench.run_trial` gives it).
 
   Raises:
     ValueError: unknown name or preset; a model the policy needs is missing (the message names it); a model of
-      the wrong gripper; ``polish`` for a policy that is not a CEM policy, or with an invalid field.
+      the wrong gripper; ``polish`` for a policy that is not a CEM policy, or with an invalid field; ``supervisor``
+      without a ``world``.
   """
   _check_name(name)
+  if name in PRIVILEGED_POLICIES:
+    if world is None:
+      raise ValueError(f"policy {name!r}: reads the true state of a simulated bin; it needs the benchmark's world "
+                       "(python -m dexjax.benchmark --policy supervisor)")
+    from dexjax.bench.supervisor_policy import supervisor_policy  # pylint: disable=g-import-not-at-top
+    return supervisor_policy(world)
   if models is None:
     from dexjax.models.shipped import pretrained  # pylint: disable=g-import-not-at-top (flax/orbax import)
     models = {g: pretrained(g) for g in (GRIPPERS if uses_models(name) else ())}
@@ -131,5 +147,6 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
                             parallel_jaw=RankingPolicy(ParallelJawForceClosureCentroid(), sampler(PARALLEL_JAW)))
 
 
-__all__ = ['CEM_POLICIES', 'CEM_PRESETS', 'POLICY_NAMES', 'RANKING_CANDIDATES', 'cem_params', 'default_sampler', 'make_policy',
+__all__ = ['CEM_POLICIES', 'CEM_PRESETS', 'POLICY_NAMES', 'PRIVILEGED_POLICIES', 'RANKING_CANDIDATES', 'cem_params',
+           'default_sampler', 'make_policy',
            'required_grippers', 'uses_models']
