@@ -148,15 +148,18 @@ def test_a_policy_that_picks_every_object_empties_the_bin_and_resumes_identicall
   assert strip(resumed) == strip(records)
 
 
-def test_consecutive_failures_and_the_attempt_budget_end_a_trial(world):
+def test_consecutive_failures_the_attempt_budget_and_no_grasp_end_a_trial(world):
   judges = {'analytic': analytic_judge(world)}
-  records = run_trial(world, no_grasp, judges, policy='none', trial=1,
+  records = run_trial(world, edge_suction, judges, policy='edge', trial=1,
                       protocol=Protocol(objects_per_trial=2, max_consecutive_failures=3))
   assert [r['stop'] for r in records] == [None, None, 'consecutive_failures']
-  assert all(r['reason'] == 'no_grasp' and r['objects_left'] == 2 for r in records)
-  records = run_trial(world, no_grasp, judges, policy='none', trial=1,
+  assert all(not r['success'] and r['reason'] != 'no_grasp' and r['objects_left'] == 2 for r in records)
+  records = run_trial(world, edge_suction, judges, policy='edge', trial=1,
                       protocol=Protocol(objects_per_trial=2, max_attempts=2))
   assert [r['stop'] for r in records] == [None, 'max_attempts']
+  # A policy that finds no grasp would find none again in the unchanged bin: one failed attempt ends the trial.
+  records = run_trial(world, no_grasp, judges, policy='none', trial=1, protocol=Protocol(objects_per_trial=2))
+  assert [(r['stop'], r['reason'], r['success']) for r in records] == [('no_grasp', 'no_grasp', False)]
 
 
 def edge_suction(key, obs):

@@ -67,13 +67,13 @@ def test_dexnet4_yaml_spells_out_the_defaults():
   assert fingerprint(config) == fingerprint(GenerateConfig())
 
 
-def test_datasets_made_before_sleeping_objects_keep_their_fingerprint():
-  """Known answers: the fingerprints dexjax fbba1db gave the defaults and SMALL (before ``settle.sleep``). With sleep
-  off the physics is theirs, so their directories can still be resumed and grown; the speed-only settling fields
-  never change a fingerprint, and sleeping objects do."""
+def test_fingerprints_are_known_answers():
+  """Known answers: the fingerprints of the defaults and SMALL with labels version 4 (2026-12-06: the heap reward's
+  refined jaw collision test; every dataset of an older labels version gets a new fingerprint, so none is resumed
+  with the new labels). The speed-only settling fields never change a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == 'cf3654bb50bcac26'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '652ea5cd1f771249'
+  assert fingerprint(awake(GenerateConfig())) == '5499b5566f9f9c47'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '44f666f33b2c392e'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))

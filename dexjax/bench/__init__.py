@@ -5,7 +5,7 @@ runner of whole benchmarks (`run_benchmark`, the engine of ``python -m dexjax.be
 
 from dexjax.bench.analytic_judge import analytic_verdict, world_grasp
 from dexjax.bench.attempt_log import AttemptLogError, append_attempt, read_attempts
-from dexjax.bench.collision_rule import collision_samples, gripper_collision
+from dexjax.bench.collision_rule import collision_samples, gripper_collision, label_collision
 from dexjax.bench.execution import PHYSICS_FAILURES, PhysicsOutcome, PhysicsSettings, execute_grasp, receptacle_centre
 from dexjax.bench.suction_hold import SealHold, seal_hold, seal_tolerance
 from dexjax.bench.judges import Judge, Verdict, analytic_judge, physics_judge
@@ -24,7 +24,7 @@ __all__ = [
     'stop_reason', 'trial_key',
     'Judge', 'Verdict', 'analytic_judge', 'analytic_verdict', 'physics_judge', 'world_grasp',
     'PHYSICS_FAILURES', 'PhysicsOutcome', 'PhysicsSettings', 'execute_grasp', 'receptacle_centre',
-    'SealHold', 'seal_hold', 'seal_tolerance', 'collision_samples', 'gripper_collision',
+    'SealHold', 'seal_hold', 'seal_tolerance', 'collision_samples', 'gripper_collision', 'label_collision',
     'PHASES', 'PathSettings', 'ToolPath', 'move_fraction', 'tool_path',
     'FailureMemory', 'REPEAT_RADIUS', 'repeated_attempts', 'SUPERVISOR', 'SupervisorPolicy', 'supervisor_policy',
     'BenchmarkSpec', 'benchmark_config', 'run_benchmark', 'summarize_run',

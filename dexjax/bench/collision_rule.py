@@ -1,15 +1,18 @@
 """One collision rule for both judges: the gripper's swept solids may not enter an object or the bin.
 
 The labels' reward (seed: "the gripper geometry in the pose specified by u_t is collision-free from all objects
-and obstacles") tests the gripper's collision samples (`dexjax.quality.gripper_geometry`: fingers and palm, or
+and obstacles") tests the gripper's collision geometry (`dexjax.quality.gripper_geometry`: fingers and palm, or
 cup and shaft, swept back along the approach by the pre-grasp standoff; the finger pads and the cup's lip, which
-are meant to touch, are not sampled) against every object's signed distance grid and the bin, with the
-library's one collision tolerance (`QualityConfig.collision_tolerance`, 1 mm). The physics judge applies the
-same test to the same samples before it executes a grasp, against the simulated bodies (each object's convex
-collision hulls in its simulated pose, the bin's floor and walls): a grasp the labels call a collision is a
-collision for the judge too, instead of a pick that pushes its neighbours aside. The two tests differ only in the
-objects' geometry (the mesh's distance grid vs its convex decomposition; identical for convex objects), and
-`benchmarks/judge_agreement.py` measures how often that makes them disagree.
+are meant to touch, are not tested) against every object's signed distance grid and the bin, with the library's
+one collision tolerance (`QualityConfig.collision_tolerance`, 1 mm): `dexjax.quality.parallel_jaw_collisions` /
+`suction_collisions`. The physics judge applies that very test to the simulated bin before it executes a grasp
+(`label_collision`): a grasp the labels call a collision is a collision for the judge too, decided before
+anything moves, instead of a pick that pushes its neighbours aside.
+
+What can still differ is the geometry the simulation then collides with: each object's convex collision hulls
+(its convex decomposition; the mesh's own hull for a convex object) instead of the mesh the labels and the images
+see. `gripper_collision` tests the same gripper samples against the hulls; `benchmarks/collision_agreement.py`
+measures how often the two geometries decide differently on the grasps policies propose.
 """
 
 from __future__ import annotations
@@ -21,12 +24,27 @@ import numpy as np
 from scipy.spatial import ConvexHull
 
 from dexjax.geometry.transforms import quat_to_matrix
+import jax
+
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.gripper_geometry import GripperGeometry, jaw_collision_points, suction_collision_points
-from dexjax.quality.heap_reward import bin_collision
+from dexjax.quality.heap_reward import (HeapScene, RewardParams, bin_collision, parallel_jaw_collisions,
+                                        suction_collisions)
 from dexjax.sim.bodies import HeapObject
 from dexjax.sim.heap import Bin
+
+
+_collisions = {False: jax.jit(parallel_jaw_collisions), True: jax.jit(suction_collisions)}
+
+
+def label_collision(grasp: ParallelJawGrasp | SuctionGrasp, scene: HeapScene, bin_: Bin,
+                    gripper: ParallelJawGripper | SuctionGripper, params: RewardParams = RewardParams()) -> str | None:
+  """The labels' collision verdict of a world-frame grasp on a heap: ``'collision_object'``, ``'collision_bin'``
+  or None (`parallel_jaw_collisions` / `suction_collisions`, the reward's first check, in its order)."""
+  hit_object, hit_bin = jax.device_get(_collisions[isinstance(grasp, SuctionGrasp)](grasp, scene, bin_, gripper,
+                                                                                    params))
+  return 'collision_object' if hit_object else ('collision_bin' if hit_bin else None)
 
 
 def hull_planes(hull: np.ndarray) -> np.ndarray:
@@ -86,4 +104,4 @@ def gripper_collision(objects: Sequence[HeapObject], object_ids: np.ndarray, mas
   return None, -1
 
 
-__all__ = ['collision_samples', 'gripper_collision', 'hull_planes', 'penetration']
+__all__ = ['collision_samples', 'gripper_collision', 'hull_planes', 'label_collision', 'penetration']

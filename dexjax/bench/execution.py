@@ -2,10 +2,10 @@
 
 The seed's success: the robot "lifts and transports exactly one object from the heap to a receptacle". The judge:
 
-1. **Collisions** (`dexjax.bench.collision_rule`, on by default): the labels' own rule on the simulated bodies.
-   The gripper's swept solids (the reward's collision samples) may not enter an object or the bin by more than
-   the collision tolerance; if they do, the attempt fails (``collision_object`` / ``collision_bin``) before
-   anything moves, as it does in the labels.
+1. **Collisions** (`dexjax.bench.collision_rule`, on by default): the labels' own collision test on the bin
+   (`dexjax.quality.parallel_jaw_collisions` / `suction_collisions`): where the gripper's swept solids enter an
+   object or the bin by more than the collision tolerance, the attempt fails (``collision_object`` /
+   ``collision_bin``) before anything moves, as it does in the labels.
 2. **Execution** in the heap's MuJoCo model (`dexjax.sim.heap_spec`: the bin and every object as a free body of
    convex hulls) with the gripper (`dexjax.bench.gripper_bodies`) and a receptacle beside the bin: the tool follows
    the pick's path (`dexjax.bench.tool_path`): from a pre-grasp pose ``standoff`` behind the grasp along the
@@ -43,7 +43,7 @@ import mujoco
 import numpy as np
 
 from dexjax.bench import gripper_bodies as gb
-from dexjax.bench.collision_rule import collision_samples, gripper_collision
+from dexjax.bench.collision_rule import label_collision
 from dexjax.bench.grasp_scene import GraspScene, PhysicsSettings
 from dexjax.bench.suction_hold import SealHold, seal_hold
 from dexjax.bench.tool_path import PHASES, tool_path
@@ -51,7 +51,7 @@ from dexjax.contacts.suction import suction_seal
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.geometry.object_model import ObjectModel
-from dexjax.quality.gripper_geometry import GripperGeometry
+from dexjax.quality.heap_reward import HeapScene, RewardParams, heap_scene
 from dexjax.sim.bodies import HeapObject
 from dexjax.sim.heap import Bin, HeapState
 
@@ -73,7 +73,7 @@ class PhysicsOutcome:
   Attributes:
     success: exactly one object, the gripped one, reached the receptacle.
     reason: ``'none'`` or one of `PHYSICS_FAILURES`.
-    target_slot: the slot of the object gripped (or entered, for ``collision_object``; -1 for none).
+    target_slot: the slot of the object gripped (-1 for none, and for collisions).
     poses: (P, 7) float64 object-frame poses of every slot at the end (unused slots unchanged).
     detail: JSON-able numbers: ``phase`` where the attempt ended, ``lifted`` slots (raised ``min_lift`` when
       it ended), ``delivered`` (slots in the receptacle), ``guard_short`` (how far short of the planned grasp the
@@ -112,8 +112,8 @@ def _start(sim: GraspScene, grasp_origin: np.ndarray, approach: np.ndarray) -> n
 
 def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], heap: HeapState, poses: np.ndarray,
                   grasp: ParallelJawGrasp | SuctionGrasp, gripper: ParallelJawGripper | SuctionGripper,
-                  settings: PhysicsSettings = PhysicsSettings(), geometry: GripperGeometry = GripperGeometry(),
-                  bin_: Bin = Bin(), collision_tolerance: float = 1e-3) -> PhysicsOutcome:
+                  settings: PhysicsSettings = PhysicsSettings(), reward: RewardParams = RewardParams(),
+                  bin_: Bin = Bin(), scene: HeapScene | None = None) -> PhysicsOutcome:
   """Executes one world-frame grasp on a heap in MuJoCo (see the module doc).
 
   Args:
@@ -123,17 +123,20 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
     poses: (P, 7) object-frame poses of the slots, world frame (xyz metres, wxyz).
     grasp: the world-frame grasp (concrete NumPy/JAX values).
     gripper: the gripper of the grasp's type.
-    settings: judge settings; geometry: the gripper's collision solids (the labels'); bin_: the bin.
-    collision_tolerance: the labels' collision tolerance, m (`QualityConfig.collision_tolerance`).
+    settings: judge settings; bin_: the bin.
+    reward: the labels' reward settings: their collision tolerance and gripper collision geometry.
+    scene: the heap's `HeapScene` for the collision test (built from ``models`` when None).
   """
   grasp = jax.tree.map(np.asarray, grasp)
   poses = np.asarray(poses, np.float64)
   if settings.collision_check:
-    reason, slot = gripper_collision(objects, np.asarray(heap.object_ids), np.asarray(heap.mask), poses,
-                                     collision_samples(grasp, gripper, geometry), bin_, collision_tolerance)
+    if scene is None:
+      scene = heap_scene(models, heap.object_ids, heap.mask, poses, heap.friction)
+    reason = label_collision(grasp, scene, bin_, gripper, reward)
     if reason:
-      return PhysicsOutcome(success=False, reason=reason, target_slot=slot, poses=poses.copy(),
+      return PhysicsOutcome(success=False, reason=reason, target_slot=-1, poses=poses.copy(),
                             detail={'phase': 'approach', 'sim_seconds': 0.0, 'lifted': [], 'delivered': []})
+  geometry = reward.quality.geometry
   pose = np.asarray(suction_pose(grasp) if isinstance(grasp, SuctionGrasp) else parallel_jaw_pose(grasp), np.float64)
   sim = GraspScene(objects, heap, poses, pose, grasp, gripper, settings, geometry, receptacle_centre(settings), bin_)
   approach, origin = pose[:3, 0], pose[:3, 3]

@@ -73,9 +73,8 @@ def physics_judge(world: PickingWorld, settings: PhysicsSettings = PhysicsSettin
     grasp = jax.device_get(world_grasp(action, camera))
     params = world.params
     gripper = params.suction if action.gripper_name == 'suction' else params.parallel_jaw
-    quality = params.reward.quality
     out = execute_grasp(world.bodies, world.models, world.heap_state(state), state.poses, grasp, gripper, settings,
-                        quality.geometry, params.bin, quality.collision_tolerance)
+                        params.reward, params.bin, world.scene(state))
     verdict = Verdict(success=out.success, target_slot=out.target_slot, reason=out.reason, detail=out.detail)
     moved = out.detail['sim_seconds'] > 0
     return verdict, (dataclasses.replace(state, poses=out.poses) if moved else None)

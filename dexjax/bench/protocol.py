@@ -3,15 +3,19 @@
 Seed ("Characterization of Grasping Benchmark", Procedure): five independent trials per policy; in each, the bin
 is filled with the objects and the robot attempts to pick them one by one; "a trial is considered complete after
 either all objects are removed, 75 total attempts, or 10 consecutive failures". The experiments used 25 objects
-per difficulty level.
+per difficulty level. One rule is added (docs/deviations.md): a policy may report that it finds no grasp (the
+seed's always acted); the attempt counts as a failure and the trial ends there, instead of repeating the same
+empty answer on an unchanged bin until ten failures end it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-STOP_REASONS = ('empty', 'max_attempts', 'consecutive_failures')
-"""Why a trial ended: the bin is empty, the attempt budget is spent, or too many failures in a row."""
+STOP_REASONS = ('empty', 'max_attempts', 'consecutive_failures', 'no_grasp')
+"""Why a trial ended: the bin is empty, the attempt budget is spent, too many failures in a row, or the policy found
+no grasp (`run_trial`: the robot does not move, so the bin, and a deterministic policy's answer, would not change).
+"""
 
 
 @dataclasses.dataclass(frozen=True)

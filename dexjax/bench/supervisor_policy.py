@@ -8,8 +8,8 @@ highest robust quality over both grippers' candidates:
    object with their robust quality over the seed's M = 25 draws of pose, friction, mass and gravity; cached on
    disk), moved into the bin by each object's true pose and turned into the image grasps the policies output
    (`parallel_jaw_supervisor_candidates` / `suction_supervisor_candidates`: expressible from the camera, visible in
-   the true segmentation, inside the image), the ``max_checked`` of highest set quality tested best first for
-   collisions with the labels' rule;
+   the true segmentation, inside the image; every valid grasp, not only the dataset's robust ones), the
+   ``max_checked`` of highest set quality tested best first for collisions with the labels' rule;
 2. the ``num_scored`` best collision-free candidates of each gripper scored with the seed's reward in this bin
    (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the object's own friction) with the
    supervisor's M = 25 draws instead of the labels' 10;
@@ -87,7 +87,7 @@ class SupervisorPolicy:
 
   params: LabelParams
   sets: tuple[GraspSet, GraspSet]
-  num_scored: int = 16
+  num_scored: int = 32
   privileged: bool = True
 
   def __call__(self, key: jax.Array, observation: Observation, scene: HeapScene, camera: Camera,
@@ -114,12 +114,16 @@ class SupervisorPolicy:
     return jax.device_get(actions[int(np.argmax(ranks))])
 
 
-def supervisor_policy(world: Any, num_scored: int = 16) -> SupervisorPolicy:
+def supervisor_policy(world: Any, num_scored: int = 32, max_checked: int = 256) -> SupervisorPolicy:
   """The `SupervisorPolicy` of a `PickingWorld` (its objects' grasp sets computed or loaded from the world's cache).
-  Its grasps may lie anywhere in the image: it reads no crop, so the border the learned policies need (the
-  supervisor's ``boundary`` for the dataset) does not apply."""
+
+  As a policy the supervisor considers every valid grasp of its sets, not only those above the dataset's
+  threshold (it ranks them by the reward in the bin itself), tests the ``max_checked`` best of each gripper for
+  collisions and scores the ``num_scored`` best collision-free ones; its grasps may lie anywhere in the image (it
+  reads no crop, so the border the learned policies need does not apply)."""
   from dexjax.generate.pipeline import supervisor_sets  # pylint: disable=g-import-not-at-top
-  params = world.params.replace(supervisor=world.params.supervisor.replace(boundary=0.0))
+  params = world.params.replace(supervisor=world.params.supervisor.replace(boundary=0.0, threshold=0.0,
+                                                                           max_checked=max_checked))
   return SupervisorPolicy(params=params, sets=supervisor_sets(world.config, world.models, world.cache_dir),
                           num_scored=num_scored)
 

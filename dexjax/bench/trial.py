@@ -37,7 +37,8 @@ from dexjax.policy.preprocess import prepare_observation
 from dexjax.render.camera import Camera
 
 NO_GRASP = 'no_grasp'
-"""Failure reason of an attempt whose policy found no valid grasp (or saw no object)."""
+"""Failure reason of an attempt whose policy found no valid grasp (or saw no object), and the stop reason of its
+trial."""
 
 
 Planner = Callable[[jax.Array, Observation], GraspAction]
@@ -132,7 +133,8 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
     start_count = state.count
   memory.validate()
   attempt = len(records)
-  while stop_reason(state.count, attempt, failures, protocol) is None:
+  stop = stop_reason(state.count, attempt, failures, protocol)
+  while stop is None:
     k_noise, k_plan, k_judge = _attempt_keys(key, attempt)
     clock = time.perf_counter()
     depth, segmentation = world.observe(k_noise, state, camera)
@@ -167,7 +169,7 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
       failures += 1
     stages['settle'] = time.perf_counter() - clock
     attempt += 1
-    stop = stop_reason(state.count, attempt, failures, protocol)
+    stop = stop_reason(state.count, attempt, failures, protocol) or (NO_GRASP if action is None else None)
     record = {'policy': policy, 'trial': trial, 'attempt': attempt - 1, **_action_fields(action),
               'world_center': None if action is None else np.asarray(world_grasp(action, camera).center).tolist(),
               'objects_at_start': start_count,

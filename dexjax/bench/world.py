@@ -102,6 +102,7 @@ class PickingWorld:
     self.params: LabelParams = label_params(config)
     width, height = image_size(config)
     self.renderer = DepthRenderer(width, height, backend=config.dataset.render_backend, settings=config.render)
+    self._scene: tuple[Any, Any, Any] = (None, None, None)  # (key, HeapScene, the state it belongs to)
 
   def close(self) -> None:
     self.renderer.close()
@@ -158,11 +159,16 @@ class PickingWorld:
 
   def scene(self, state: BinState, known_mass: bool = False) -> HeapScene:
     """The analytic reward's view of the bin: the objects' models in slot order, poses and friction (and, with
-    ``known_mass``, each object's simulated mass instead of the reward's Gamma draws)."""
-    mass = None
-    if known_mass:
-      mass = np.array([self.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
-    return heap_scene(self.models, state.object_ids, state.mask, state.poses, state.friction, mass)
+    ``known_mass``, each object's simulated mass instead of the reward's Gamma draws). The last scene is kept,
+    so the judges and the supervisor of one attempt share one copy of the stacked distance grids."""
+    key = (id(state), known_mass)
+    if self._scene[0] != key:
+      mass = None
+      if known_mass:
+        mass = np.array([self.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
+      self._scene = (key, heap_scene(self.models, state.object_ids, state.mask, state.poses, state.friction, mass),
+                     state)
+    return self._scene[1]
 
   def observe(self, key: jax.Array, state: BinState, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(depth (H, W) float32 metres with the run's sensor noise, NaN where invalid; the true segmentation

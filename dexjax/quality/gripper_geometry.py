@@ -54,8 +54,8 @@ from dexjax.grippers import ParallelJawGripper
 
 __all__ = [
     'GripperGeometry', 'REFINE_DEPTHS', 'REFINED_SAMPLES', 'NEAREST_SAMPLES', 'jaw_solids', 'jaw_collision_points',
-    'jaw_clearance', 'jaw_collision_samples', 'jaw_contact_points', 'nearest_jaw_samples', 'jaw_collides', 'suction_collision_points',
-    'suction_contact_points', 'to_world',
+    'jaw_clearance', 'jaw_collision_samples', 'jaw_contact_points', 'jaw_corner_points', 'nearest_jaw_samples',
+    'jaw_collides', 'suction_collision_points', 'suction_contact_points', 'suction_rim_points', 'to_world',
 ]
 
 #: Depths below the nearest surface, as multiples of the collision tolerance, to which `jaw_collides` moves
@@ -283,6 +283,27 @@ def suction_collision_points(geometry: GripperGeometry, cup_radius: jax.Array, c
   shaft = _cylinder(g.shaft_radius, -(cup_height + g.shaft_length), -cup_height, _count(g.shaft_length, g.spacing),
                     shaft_rings)
   return jnp.concatenate([cup, shaft])
+
+
+def jaw_corner_points(gripper: ParallelJawGripper, geometry: GripperGeometry, width: jax.Array) -> jax.Array:
+  """(8 S, 3) gripper-frame corners of the swept fingers and palm (`jaw_solids`, S solids): a solid's extreme
+  point toward any plane, so a test of the corners against the bin's floor is exact."""
+  signs = jnp.asarray(np.array(np.meshgrid([0.0, 1.0], [0.0, 1.0], [0.0, 1.0], indexing='ij')).reshape(3, -1).T,
+                      jnp.float32)
+  return jnp.concatenate([lo + signs * (hi - lo) for lo, hi, _ in jaw_solids(gripper, geometry, width)])
+
+
+def suction_rim_points(geometry: GripperGeometry, cup_radius: jax.Array, cup_height: jax.Array,
+                       count: int = 16) -> jax.Array:
+  """(4 count, 3) gripper-frame points on the rims of the swept cup (its front face ``lip_allowance`` behind the
+  lip, its back face) and of the shaft's ends: a disc's extreme point toward a plane lies on its rim, so with
+  ``count`` points the floor test is within r (1 - cos(pi / count)) of exact."""
+  g = geometry
+  angles = 2.0 * jnp.pi * jnp.arange(count) / count
+  circle = jnp.stack([jnp.cos(angles), jnp.sin(angles)], axis=1)
+  rim = lambda x, radius: jnp.concatenate([jnp.full((count, 1), x, jnp.float32), radius * circle], axis=1)
+  return jnp.concatenate([rim(-g.lip_allowance, cup_radius), rim(-(cup_height + g.standoff), cup_radius),
+                          rim(-cup_height, g.shaft_radius), rim(-(cup_height + g.shaft_length), g.shaft_radius)])
 
 
 def suction_contact_points(geometry: GripperGeometry, cup_radius: jax.Array) -> jax.Array:

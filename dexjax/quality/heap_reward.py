@@ -7,8 +7,11 @@ S = 1 iff, in this order of checks (the first failing one names the `RewardRecor
    shaft, swept back along the approach by the standoff) lies deeper than ``quality.collision_tolerance``
    (`QualityConfig`, the one collision tolerance of the library) inside any heap object (its signed distance grid,
    queried in the object's frame) or the bin (below the floor z = 0, or inside a wall box of
-   `dexjax.sim.bin_boxes`). The surfaces meant to touch (finger pads, cup lip) are not sampled. This check
-   alone is `parallel_jaw_collisions` / `suction_collisions` (also used by the supervisor).
+   `dexjax.sim.bin_boxes`). For the jaws, each object gets the single-object quality's test (`jaw_collides`: the
+   samples nearest to it are also refined between the samples), so overlaps from about the tolerance on are found
+   wherever they lie. The surfaces meant to touch (finger pads, cup lip) are not sampled. This check alone is
+   `parallel_jaw_collisions` / `suction_collisions` (also used by the supervisor and, on the simulated bin, by the
+   benchmark's physics judge).
 2. ``no_object`` / ``multiple_objects``: exactly one object is contacted. Parallel jaw: an object is contacted
    when it reaches more than ``quality.collision_tolerance`` into the closing region between the pads (the jaws would
    squeeze it). Suction: when its surface comes within ``suction_contact_distance`` of the cup's mouth disc.
@@ -46,8 +49,9 @@ from dexjax.geometry.transforms import quat_to_matrix
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.grasp_quality import QualityConfig
-from dexjax.quality.gripper_geometry import (jaw_collision_points, jaw_contact_points, suction_collision_points,
-                                             suction_contact_points, to_world)
+from dexjax.quality.gripper_geometry import (jaw_clearance, jaw_collision_points, jaw_contact_points,
+                                             jaw_corner_points, suction_collision_points, suction_contact_points,
+                                             suction_rim_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
                                    robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations,
                                    with_known_friction, with_known_mass)
@@ -236,20 +240,46 @@ def _target_model(scene: HeapScene, target: jax.Array) -> ObjectModel:
   return select_model(scene.models, index)
 
 
+def _slot_jaw_clearance(scene: HeapScene, grasp: ParallelJawGrasp, gripper: ParallelJawGripper,
+                        params: RewardParams) -> jax.Array:
+  """(P,) `jaw_clearance` of the open jaws of a world-frame grasp to the object in each slot (+inf in empty
+  slots), in each object's frame; one compiled slot, each a `jax.lax.cond` on its mask (as `slot_distances`)."""
+  ids = jnp.clip(scene.object_ids, 0, scene.models.sdf.shape[0] - 1)
+  tol = params.quality.collision_tolerance
+
+  def one(slot):
+    center, dirs, _ = _to_object_frame(scene.poses[slot], grasp.center, jnp.stack([grasp.axis, grasp.approach]))
+    local = grasp.replace(center=center, axis=dirs[0], approach=dirs[1])
+    return jaw_clearance(select_model(scene.models, ids[slot]), local, gripper, params.quality.geometry, tol)
+
+  empty = lambda slot: jnp.asarray(jnp.inf, jnp.float32)
+  body = lambda carry, slot: (carry, jax.lax.cond(scene.mask[slot], one, empty, slot))
+  return jax.lax.scan(body, None, jnp.arange(scene.mask.shape[0]))[1]
+
+
 def parallel_jaw_collisions(grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin,
                             gripper: ParallelJawGripper = ParallelJawGripper(),
                             params: RewardParams = RewardParams()) -> tuple[jax.Array, jax.Array]:
   """Check 1 of the reward for one world-frame parallel-jaw grasp: (hit_object, hit_bin), () bools.
 
-  True when a sample of the fingers and palm (`jaw_collision_points`: the sizes of ``gripper``, the grasp's
-  ``width``, swept back by the standoff of ``params.quality.geometry``) lies more than
-  ``params.quality.collision_tolerance`` inside any heap object, or inside the bin (`bin_collision`). These are
-  the points the single-object quality tests (`dexjax.quality.gripper_geometry.jaw_collides`, which adds a
-  refinement step per point).
+  ``hit_object``: the single-object test `dexjax.quality.gripper_geometry.jaw_collides` against each heap
+  object in its own frame: a sample of the fingers and palm (`jaw_collision_points`: the sizes of ``gripper``,
+  the grasp's ``width``, swept back by the standoff of ``params.quality.geometry``), or a refined point between
+  the samples nearest to the object, lies more than ``params.quality.collision_tolerance`` inside it (so an
+  overlap from about the tolerance on is found anywhere, not only where a sample lies; point jaws, with no
+  finger volume, test the palm's samples alone). ``hit_bin``: a sample or a corner of the solids
+  (`jaw_corner_points`: exact against the floor) inside the bin (`bin_collision`).
   """
   tol = params.quality.collision_tolerance
-  body = to_world(parallel_jaw_pose(grasp), jaw_collision_points(gripper, params.quality.geometry, grasp.width))
-  return jnp.any(slot_distances(scene, body) < -tol), bin_collision(body, bin_, tol)
+  geometry = params.quality.geometry
+  pose = parallel_jaw_pose(grasp)
+  body = to_world(pose, jaw_collision_points(gripper, geometry, grasp.width))
+  if gripper.finger_thickness > 0:
+    hit_object = jnp.any(_slot_jaw_clearance(scene, grasp, gripper, params) < -tol)
+  else:
+    hit_object = jnp.any(slot_distances(scene, body) < -tol)
+  corners = to_world(pose, jaw_corner_points(gripper, geometry, grasp.width))
+  return hit_object, bin_collision(jnp.concatenate([body, corners]), bin_, tol)
 
 
 def suction_collisions(grasp: SuctionGrasp, scene: HeapScene, bin_: Bin, gripper: SuctionGripper = SuctionGripper(),
@@ -257,12 +287,15 @@ def suction_collisions(grasp: SuctionGrasp, scene: HeapScene, bin_: Bin, gripper
   """Check 1 of the reward for one world-frame suction grasp: (hit_object, hit_bin), () bools.
 
   As `parallel_jaw_collisions` for the cup (``gripper.cup_radius`` and ``cone_height``, without the lip slab)
-  and the tool shaft.
+  and the tool shaft: their samples against the objects; samples and rim points (`suction_rim_points`) against the
+  bin.
   """
   tol = params.quality.collision_tolerance
-  body = to_world(suction_pose(grasp),
-                  suction_collision_points(params.quality.geometry, gripper.cup_radius, gripper.cone_height))
-  return jnp.any(slot_distances(scene, body) < -tol), bin_collision(body, bin_, tol)
+  geometry = params.quality.geometry
+  pose = suction_pose(grasp)
+  body = to_world(pose, suction_collision_points(geometry, gripper.cup_radius, gripper.cone_height))
+  rims = to_world(pose, suction_rim_points(geometry, gripper.cup_radius, gripper.cone_height))
+  return jnp.any(slot_distances(scene, body) < -tol), bin_collision(jnp.concatenate([body, rims]), bin_, tol)
 
 
 def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin,
