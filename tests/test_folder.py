@@ -1,4 +1,5 @@
-"""Tests for the mesh-folder loader, `prepare_object` caching and ``python -m dexjax.objects``."""
+"""Tests for the mesh-folder loader, `prepare_object` caching and ``python -m dexjax.objects`` (check, masses,
+preview)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import sys
 
 import numpy as np
 import pytest
+import scipy.stats
 import trimesh
 
 from dexjax.geometry import cache as cache_mod
@@ -215,3 +217,60 @@ def test_preview_writes_a_png(tmp_path):
   out = tmp_path / 'sheet.png'
   assert main(['--preview', str(out), '--per-level', '1', '--seed', '3']) == 0
   assert out.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_masses_command_matches_the_heap_physics(tmp_path, capsys):
+  from dexjax.objects import load_object_set, prepare_object_set
+  from dexjax.sim import heap_objects
+  assert main(['masses', 'procedural:L1/0:6', 'builtin:box', '--json']) == 0
+  out = json.loads(capsys.readouterr().out)
+  assert list(out) == ['objects', 'summary', 'prior', 'max_mass', 'rejected']
+  report = load_object_set(['procedural:L1/0:6', 'builtin:box'])
+  prepared, rejected = prepare_object_set(report, cache_dir=tmp_path, model=False)
+  assert not rejected
+  physics = {o.name: o.mass for o in heap_objects(prepared)}
+  assert [o['name'] for o in out['objects']] == list(physics)
+  for row in out['objects']:
+    assert row['mass'] == pytest.approx(physics[row['name']], rel=1e-12)
+    assert row['extents'] == sorted(row['extents'])
+  procedural_rows = out['objects'][:6]
+  assert [r['family'] for r in procedural_rows] == ['box', 'cylinder', 'rounded_box', 'prism', 'frustum', 'ball']
+  assert all(r['material'] and r['mass'] == pytest.approx(r['density'] * r['volume']) for r in procedural_rows)
+  box = out['objects'][6]
+  assert (box['family'], box['material'], box['density']) == (None, None, 500.0)
+  masses = np.array(list(physics.values()))
+  assert out['summary']['count'] == 7 and out['summary']['median'] == pytest.approx(np.median(masses))
+  assert out['summary']['above_prior_mean'] == pytest.approx(np.mean(masses > 0.25))
+  assert out['max_mass'] == 0.6 and out['summary']['above_max_mass'] == 0.0
+  prior = out['prior']  # Gamma, mean 0.25 kg, variance 0.05 kg^2: shape 1.25, scale 0.2 kg.
+  assert prior['sd'] == pytest.approx(0.05**0.5)
+  assert prior['median'] == pytest.approx(scipy.stats.gamma(1.25, scale=0.2).median())
+  assert prior['above_max_mass'] == pytest.approx(scipy.stats.gamma(1.25, scale=0.2).sf(0.6))
+
+  assert main(['masses', 'procedural:L1/0:6']) == 0  # The human-readable table: one line per object, a summary.
+  lines = capsys.readouterr().out.splitlines()
+  assert lines[0].split()[:3] == ['name', 'family', 'material'] and len(lines) == 1 + 6 + 2
+  assert lines[1].startswith('procedural:L1/0 ') and 'boxed goods' in lines[1]
+  assert f"{physics['procedural:L1/0']:.3f}" in lines[1]
+  assert lines[7].startswith('6 objects: mean') and 'above MAX_MASS 0.6 kg' in lines[7]
+  assert lines[8].startswith('prior (Gamma, mean 0.25 kg, sd 0.224 kg)')
+
+
+def test_masses_command_bad_sources(tmp_path, capsys):
+  for source, words in (('procedural:L9/0', "'procedural:L{level}/{index}'"),
+                        ('procedural:L1/4:2', '0 <= start <= stop'),
+                        (str(tmp_path / 'missing.obj'), 'missing.obj: file not found'),
+                        ('builtin:nope', "unknown builtin object 'nope'")):
+    assert main(['masses', 'procedural:L1/0', source]) == 2, source
+    err = capsys.readouterr().err
+    assert err.startswith('error: ') and words in err and len(err.strip().splitlines()) == 1, err
+  empty = tmp_path / 'empty'
+  empty.mkdir()
+  (empty / 'broken.obj').write_bytes(b'')
+  assert main(['masses', str(empty)]) == 1  # A folder whose only file is broken: nothing to weigh.
+  err = capsys.readouterr().err
+  assert 'broken.obj' in err and 'could be loaded' in err
+  result = subprocess.run([sys.executable, '-m', 'dexjax.objects', 'masses', 'procedural:L1/x'],
+                          capture_output=True, text=True, timeout=120)
+  assert result.returncode == 2 and not result.stdout
+  assert "error: procedural:L1/x: object spec 'procedural:L1/x': expected" in result.stderr

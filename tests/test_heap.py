@@ -151,6 +151,33 @@ def test_heap_object_mass_properties():
   assert l_obj.center_of_mass[0] > 0.005 and l_obj.center_of_mass[2] < -0.005
 
 
+def test_heap_object_uses_the_objects_own_density():
+  from types import SimpleNamespace
+  from dexjax.objects import procedural_mesh
+  mesh = procedural_mesh(1, 0)  # A procedural box: its own density from its material
+  density = mesh.metadata["density"]
+  assert sim.object_density(mesh) == density and density != sim.DEFAULT_DENSITY
+  obj = sim.heap_object(mesh)
+  assert obj.mass == pytest.approx(density * mesh.volume, rel=1e-12)
+  extents = np.sort(mesh.extents)
+  expected = obj.mass / 12 * np.sort([extents[0]**2 + extents[1]**2, extents[0]**2 + extents[2]**2,
+                                      extents[1]**2 + extents[2]**2])
+  np.testing.assert_allclose(np.sort(np.linalg.eigvalsh(obj.inertia)), expected, rtol=1e-9)  # Uniform density.
+  assert sim.heap_object(mesh, density=500.0).mass == pytest.approx(500.0 * mesh.volume)  # An explicit one wins.
+  # An own density is not clipped (the generator bounds procedural masses); the default rule still is.
+  light = builtin_mesh("box")  # 192 cm^3
+  assert sim.object_density(light) is None
+  assert sim.heap_object(light, density=20.0).mass == 0.01
+  light.metadata["density"] = 20.0
+  assert sim.heap_object(light).mass == pytest.approx(20.0 * 192e-6)
+  assert sim.heap_object(light, mass_range=(0.01, 2.0)).mass == 0.01
+  # heap_objects: each object its own rule, in order.
+  prepared = [SimpleNamespace(name=n, mesh=m, hulls=(np.asarray(m.convex_hull.vertices),))
+              for n, m in (("p", mesh), ("box", builtin_mesh("box")))]
+  masses = [o.mass for o in sim.heap_objects(prepared)]
+  assert masses == pytest.approx([density * mesh.volume, 500.0 * 192e-6])
+
+
 def test_heap_object_rejects_bad_input():
   mesh = builtin_mesh("cube")
   with pytest.raises(ValueError, match=r"hulls\[0\].*4 non-coplanar"):

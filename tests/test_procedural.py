@@ -1,23 +1,30 @@
-"""Tests of the procedural object generator (dexjax.objects.procedural) and its contact sheet."""
+"""Tests of the procedural object generator (dexjax.objects.procedural), its materials and its contact sheet."""
 
+import dataclasses
 import hashlib
 import subprocess
 import sys
+
+from pathlib import Path
 
 import igl
 import matplotlib.image
 import numpy as np
 import pytest
+import scipy.ndimage
 import trimesh
 
 from dexjax.geometry import validate_and_repair
 from dexjax.objects import MAX_EXTENT
 from dexjax.objects import MAX_FACES
+from dexjax.objects import MAX_MASS
 from dexjax.objects import MIN_EXTENT
+from dexjax.objects import MIN_MASS
 from dexjax.objects import builtin_mesh
 from dexjax.objects import load_object_model
 from dexjax.objects import parse_procedural_spec
 from dexjax.objects import procedural_families
+from dexjax.objects import procedural_material
 from dexjax.objects import procedural_mesh
 from dexjax.objects import procedural_mesh_problems
 from dexjax.objects import procedural_params
@@ -26,8 +33,12 @@ from dexjax.objects import procedural_specs
 from dexjax.objects import resolve_mesh
 from dexjax.objects import save_contact_sheet
 from dexjax.objects import procedural
-from dexjax.objects.procedural_shapes import ShapeFamily
+from dexjax.objects.procedural_shapes import SIZE_RANGE
 from dexjax.objects.procedural_shapes import box
+from dexjax.objects.procedural_solids import LEVEL1_EXTENT_RANGE
+from dexjax.objects.procedural_solids import LEVEL1_JAW_WIDTH
+from dexjax.objects.procedural_solids import LEVEL1_MIN_THICKNESS
+from dexjax.sim import heap_object
 
 LEVELS = (1, 2, 3)
 DISTINCT_COUNT = 1000
@@ -52,7 +63,7 @@ def _solidity(mesh):
 
 
 def _mesh_digest(mesh):
-  return (np.asarray(mesh.vertices).tobytes(), np.asarray(mesh.faces).tobytes())
+  return (np.asarray(mesh.vertices).tobytes(), np.asarray(mesh.faces).tobytes(), repr(mesh.metadata['density']))
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -72,11 +83,12 @@ def test_identical_mesh_in_a_fresh_process():
           'for level, index in ((1, 3), (2, 4), (3, 6), (3, 7)):\n'
           '  m = p(level, index, 2)\n'
           '  h.update(np.asarray(m.vertices).tobytes()); h.update(np.asarray(m.faces).tobytes())\n'
+          '  h.update(repr(m.metadata["density"]).encode())\n'
           'print(h.hexdigest())')
   digest = hashlib.sha256()
   for level, index in ((1, 3), (2, 4), (3, 6), (3, 7)):
     for part in _mesh_digest(_fresh_mesh(level, index, 2)):
-      digest.update(part)
+      digest.update(part if isinstance(part, bytes) else part.encode())
   out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True, timeout=120)
   assert out.stdout.strip() == digest.hexdigest()
 
@@ -111,7 +123,8 @@ def test_twenty_objects_per_level_are_valid_solids(level):
     assert mesh.volume > 0, index
     assert mesh.body_count == 1, index
     assert len(mesh.faces) <= MAX_FACES, index
-    assert MIN_EXTENT <= mesh.extents.max() <= MAX_EXTENT, index
+    assert MIN_EXTENT - 1e-9 <= mesh.extents.max() <= MAX_EXTENT + 1e-9, index
+    assert MIN_MASS <= mesh.metadata['density'] * mesh.volume <= MAX_MASS, index
     np.testing.assert_allclose(mesh.bounds.sum(axis=0), 0.0, atol=1e-12)
     inertia = np.linalg.eigvalsh(mesh.moment_inertia)
     assert inertia.min() > 0, index
@@ -143,10 +156,25 @@ def test_meshes_pass_mesh_repair_unchanged(level):
 
 
 def test_problems_detects_bad_meshes():
-  assert procedural_mesh_problems(builtin_mesh('box')) == []
+  assert procedural_mesh_problems(builtin_mesh('box')) == []  # 8 cm: within the extent range.
   too_big = builtin_mesh('box')
   too_big.apply_scale(3.0)
   assert any('largest extent' in p for p in procedural_mesh_problems(too_big))
+  too_small = builtin_mesh('box')
+  too_small.apply_scale(0.5)
+  assert any('largest extent' in p for p in procedural_mesh_problems(too_small))
+  # Level 1: every extent >= 3 cm (the built-in box is 4 x 6 x 8 cm; a 2 cm slab is not).
+  assert procedural_mesh_problems(builtin_mesh('box'), level=1) == []
+  slab = trimesh.creation.box((0.08, 0.06, 0.02))
+  assert any('smallest extent' in p for p in procedural_mesh_problems(slab, level=1))
+  assert procedural_mesh_problems(slab) == []
+  # Mass bounds with a density (argument or metadata): 192 cm^3 at 500 kg/m^3 is 0.096 kg.
+  heavy = builtin_mesh('box')
+  assert procedural_mesh_problems(heavy, density=500.0) == []
+  assert any('mass' in p for p in procedural_mesh_problems(heavy, density=4000.0))  # 0.77 kg > MAX_MASS.
+  assert any('mass' in p for p in procedural_mesh_problems(heavy, density=20.0))  # 3.8 g < MIN_MASS.
+  heavy.metadata['density'] = 4000.0
+  assert any('mass' in p for p in procedural_mesh_problems(heavy))
   open_box = builtin_mesh('box')
   open_box = trimesh.Trimesh(open_box.vertices, open_box.faces[1:], process=False)
   assert 'not watertight' in procedural_mesh_problems(open_box)
@@ -171,14 +199,116 @@ def test_failed_draw_is_redrawn_deterministically(monkeypatch, clean_cache):
     calls.append(params['size'].tolist())
     return box((1.0, 1.0, 1e-9)) if len(calls) == 1 else real.build(params)  # First draw is flat.
 
-  monkeypatch.setitem(procedural._FAMILIES, 1, (ShapeFamily('box', real.draw, flaky_build),))
+  monkeypatch.setitem(procedural._FAMILIES, 1, (dataclasses.replace(real, build=flaky_build),))
   mesh = _fresh_mesh(1, 0)
   assert mesh.metadata['attempt'] == 1
   assert calls[0] != calls[1]  # The redraw used new parameters.
-  assert procedural_mesh_problems(mesh) == []
-  monkeypatch.setitem(procedural._FAMILIES, 1, (ShapeFamily('box', real.draw, lambda p: box((1.0, 1.0, 1e-9))),))
+  assert procedural_mesh_problems(mesh, level=1) == []
+  monkeypatch.setitem(procedural._FAMILIES, 1, (dataclasses.replace(real, build=lambda p: box((1.0, 1.0, 1e-9))),))
   with pytest.raises(RuntimeError, match=r'procedural:L1/0@2: no valid mesh'):
     _fresh_mesh(1, 0, 2)
+
+
+def test_heavy_draw_is_redrawn(monkeypatch, clean_cache):
+  # A material dense enough that a large box exceeds MAX_MASS: those draws are redrawn, lighter ones kept.
+  real = procedural._FAMILIES[1][0]
+  dense = dataclasses.replace(real.material, density=(3000.0, 3000.0))
+  monkeypatch.setitem(procedural._FAMILIES, 1, (dataclasses.replace(real, material=dense),))
+  attempts = []
+  for index in range(12):
+    mesh = _fresh_mesh(1, index)
+    attempts.append(mesh.metadata['attempt'])
+    assert mesh.metadata['density'] == 3000.0
+    assert 3000.0 * mesh.volume <= MAX_MASS
+    for attempt in range(mesh.metadata['attempt']):  # Every rejected draw was too heavy.
+      _, params = procedural_params(1, index, 0, attempt)
+      assert 3000.0 * np.prod(params['size'] * params['extent']) > MAX_MASS
+  assert max(attempts) > 0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Household sizes, materials and masses.
+
+SIZE_COUNT = 300
+
+
+def test_level1_objects_are_household_boxes_and_cylinders():
+  assert procedural_families(1) == ('box', 'cylinder', 'rounded_box', 'prism', 'frustum', 'ball')
+  widths = []
+  for seed in (0, 1):
+    for index in range(SIZE_COUNT):
+      extents = np.sort(procedural_mesh(1, index, seed).extents)
+      assert extents[0] >= LEVEL1_MIN_THICKNESS - 1e-9, (index, seed, extents)
+      assert LEVEL1_EXTENT_RANGE[0] - 1e-9 <= extents[2] <= LEVEL1_EXTENT_RANGE[1] + 1e-9, (index, seed, extents)
+      widths.append(extents[1])
+  assert (LEVEL1_MIN_THICKNESS, LEVEL1_EXTENT_RANGE, LEVEL1_JAW_WIDTH) == (0.03, (0.06, 0.14), 0.045)
+  # Most fit between the 5 cm jaws across their width (the second-largest extent); balls and a fifth of the
+  # others (flat boxes, tuna cans) do not.
+  assert 0.65 < np.mean(np.asarray(widths) <= LEVEL1_JAW_WIDTH + 1e-9) < 0.85
+
+
+@pytest.mark.parametrize('level', LEVELS)
+def test_masses_come_from_the_family_material_and_stay_liftable(level):
+  masses, extents = [], []
+  for index in range(SIZE_COUNT if level == 1 else 150):
+    mesh = procedural_mesh(level, index)
+    material = procedural_material(level, index)
+    density = mesh.metadata['density']
+    assert mesh.metadata['material'] == material.name
+    assert material.density[0] <= density <= material.density[1], (index, material, density)
+    _, params = procedural_params(level, index, 0, mesh.metadata['attempt'])
+    assert params['density'] == density  # Drawn with the object's parameters.
+    mass = heap_object(mesh).mass  # What the physics gets: the object's own density, not clipped.
+    assert mass == pytest.approx(density * mesh.volume, rel=1e-9)
+    masses.append(mass)
+    extents.append(mesh.extents.max())
+  assert MIN_MASS <= min(masses) and max(masses) <= MAX_MASS == 0.6
+  assert 0.05 < np.median(masses) < 0.25  # Household weights (the reward's Gamma prior has median 0.19 kg).
+  low, high = LEVEL1_EXTENT_RANGE if level == 1 else SIZE_RANGE
+  assert low - 1e-9 <= min(extents) and max(extents) <= high + 1e-9
+  assert np.median(extents) > 0.08  # Not mostly tiny.
+
+
+def test_every_family_has_a_documented_material():
+  docs = (Path(__file__).resolve().parents[1] / 'docs' / 'objects.md').read_text()
+  for level in LEVELS:
+    for index, family in enumerate(procedural_families(level)):
+      material = procedural_material(level, index)
+      assert material.source and material.name
+      rows = [line for line in docs.splitlines() if line.startswith(f'| `{family}` |') and material.name in line]
+      low, high = material.density
+      assert any(f'{low:g}–{high:g}' in row for row in rows), (family, material)
+
+
+def _top_disc_diameter(mesh):
+  """Diameter (m) of the largest disc inside one upward planar facet (normal within 20 degrees of +z)."""
+  best, resolution = 0.0, 0.0005
+  groups = [list(g) for g in mesh.facets] + [[f] for f in range(len(mesh.faces))]
+  for group, normal in zip(groups, list(mesh.facets_normal) + list(mesh.face_normals)):
+    triangles = mesh.vertices[mesh.faces[group]][:, :, :2]
+    low, high = triangles.reshape(-1, 2).min(axis=0), triangles.reshape(-1, 2).max(axis=0)
+    if normal[2] < np.cos(np.radians(20)) or min(high - low) < 0.02:
+      continue
+    axes = [np.arange(low[i] - resolution, high[i] + 2 * resolution, resolution) for i in range(2)]
+    points = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).reshape(-1, 2)
+    inside = np.zeros(len(points), bool)
+    for a, b, c in triangles:
+      (u, v), scale = np.linalg.solve(np.c_[b - a, c - a], (points - a).T), 1e-9
+      inside |= (u >= -scale) & (v >= -scale) & (u + v <= 1 + scale)
+    distance = scipy.ndimage.distance_transform_edt(inside.reshape(len(axes[0]), len(axes[1])))
+    best = max(best, 2 * resolution * float(distance.max()))
+  return best
+
+
+@pytest.mark.parametrize('level', LEVELS)
+def test_no_object_is_too_thin_for_the_jaws_and_too_narrow_for_the_cup(level):
+  # In its most stable resting pose, an object stands >= 2 cm high (the jaws' fingers reach 1 cm below the grasp
+  # centre) or offers a flat upward face holding a 2 cm disc (the seed's suction cup).
+  for index in range(2 * len(procedural_families(level))):
+    mesh = procedural_mesh(level, index)
+    poses, probabilities = trimesh.poses.compute_stable_poses(mesh, n_samples=1, threshold=0.0)
+    mesh.apply_transform(poses[int(np.argmax(probabilities))])
+    assert mesh.extents[2] >= 0.02 or _top_disc_diameter(mesh) >= 0.02, (index, mesh.metadata['family'])
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -213,7 +343,7 @@ def test_thousand_objects_per_level_are_distinct(level):
 
 
 def test_levels_get_less_solid():
-  # Full cycles through each level's families: 3 x 8, 4 x 6 and 3 x 9 objects.
+  # Full cycles through each level's families: 4 x 6, 4 x 6 and 3 x 9 objects.
   means = {level: np.mean([_solidity(procedural_mesh(level, i)) for i in range(count)])
            for level, count in ((1, 24), (2, 24), (3, 27))}
   assert means[1] > 0.99  # Level 1 is convex.

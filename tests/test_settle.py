@@ -176,7 +176,8 @@ def test_object_dropped_outside_is_flagged(objects):
 
 
 def test_thin_discs_do_not_tunnel_through_the_floor():
-  """6 mm discs (the procedural L1 disc family) dropped at random orientations all rest on the floor."""
+  """6 mm discs (a thin user mesh; the procedural L1 disc family of earlier versions) dropped at random orientations
+  all rest on the floor."""
   import trimesh
   disc = sim.heap_object(trimesh.creation.cylinder(radius=0.021, height=0.006, sections=32), name="disc")
   states = _sample(3, 8, 10)

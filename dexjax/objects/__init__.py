@@ -10,16 +10,20 @@ from dexjax.objects.builtin import load_object_model
 from dexjax.objects.builtin import resolve_mesh
 from dexjax.objects.procedural import MAX_EXTENT
 from dexjax.objects.procedural import MAX_FACES
+from dexjax.objects.procedural import MAX_MASS
+from dexjax.objects.procedural import MIN_MASS
 from dexjax.objects.procedural import MIN_EXTENT
 from dexjax.objects.procedural import PROCEDURAL_LEVELS
 from dexjax.objects.procedural import PROCEDURAL_PREFIX
 from dexjax.objects.procedural import parse_procedural_spec
 from dexjax.objects.procedural import procedural_families
+from dexjax.objects.procedural import procedural_material
 from dexjax.objects.procedural import procedural_mesh
 from dexjax.objects.procedural import procedural_mesh_problems
 from dexjax.objects.procedural import procedural_params
 from dexjax.objects.procedural import procedural_spec
 from dexjax.objects.procedural import procedural_specs
+from dexjax.objects.procedural_materials import Material
 from dexjax.objects.collision import CONVEX_SOLIDITY
 from dexjax.objects.collision import cached_collision_hulls
 from dexjax.objects.collision import collision_hulls
@@ -36,19 +40,25 @@ from dexjax.objects.sets import prepare_object_set
 
 __all__ = [
     "BUILTIN_OBJECTS", "BUILTIN_PREFIX", "builtin_mesh", "load_object_model", "resolve_mesh",
-    "MAX_EXTENT", "MAX_FACES", "MIN_EXTENT", "PROCEDURAL_LEVELS", "PROCEDURAL_PREFIX", "parse_procedural_spec",
-    "procedural_families", "procedural_mesh", "procedural_mesh_problems", "procedural_params", "procedural_spec",
-    "procedural_specs",
+    "MAX_EXTENT", "MAX_FACES", "MAX_MASS", "MIN_EXTENT", "MIN_MASS", "PROCEDURAL_LEVELS", "PROCEDURAL_PREFIX",
+    "parse_procedural_spec", "procedural_families", "procedural_material", "procedural_mesh",
+    "procedural_mesh_problems", "procedural_params", "procedural_spec", "procedural_specs", "Material",
     "CONVEX_SOLIDITY", "cached_collision_hulls", "collision_hulls", "hulls_cache_key",
     "FolderReport", "LoadedObject", "PreparedObject", "Rejection", "load_mesh_folder", "prepare_object",
     "expand_object_sources", "load_object_set", "prepare_object_set",
-    "save_contact_sheet",
+    "save_contact_sheet", "ObjectMass", "object_masses", "mass_summary", "prior_summary",
 ]
+
+_MASSES = ('ObjectMass', 'object_masses', 'mass_summary', 'prior_summary')
 
 
 def __getattr__(name: str):
-  """Lazily provides `save_contact_sheet` (imports matplotlib only when previews are drawn)."""
+  """Lazily provides `save_contact_sheet` (imports matplotlib only when previews are drawn) and the mass table
+  (`object_masses`, ...; imports the heap physics only when used)."""
   if name == 'save_contact_sheet':
     from dexjax.objects.preview import save_contact_sheet  # pylint: disable=g-import-not-at-top
     return save_contact_sheet
+  if name in _MASSES:
+    import importlib  # pylint: disable=g-import-not-at-top
+    return getattr(importlib.import_module('dexjax.objects.masses'), name)
   raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

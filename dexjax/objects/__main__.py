@@ -1,7 +1,8 @@
-"""``python -m dexjax.objects``: check a folder of your own meshes, preview procedural objects, show hulls.
+"""``python -m dexjax.objects``: check a folder of your own meshes, preview procedural objects, show hulls and masses.
 
   python -m dexjax.objects check DIR [--json] [--scale S] [--recursive]
   python -m dexjax.objects hulls MESH [--max-hulls K] [--max-vertices V] [--scale S]
+  python -m dexjax.objects masses SOURCE ... [--json] [--scale S] [--recursive]
   python -m dexjax.objects --preview OUT.png [--per-level N] [--seed S]
 
 ``check`` loads every mesh file in DIR (OBJ, STL, PLY, GLB, OFF) and reports each as loaded, loaded with a
@@ -11,6 +12,12 @@ loaded, 1 when none did, 2 for bad input (docs/errors.md).
 ``--json`` prints ``{"loaded": [names], "rejected": [{"file": ..., "reason": ...}], "warnings": [{"name": ...,
 "warning": ...}]}`` to stdout.
 ``hulls`` prints the convex collision pieces of one mesh (a file or ``builtin:NAME``).
+``masses`` prints one line per object of the set the sources name (``procedural:L1/0:25@77``, ``builtin:all``,
+files, folders): name, family, material, sorted extents (cm), volume (cm^3), density (kg/m^3) and the mass (kg)
+the heap physics gives it (`dexjax.sim.heap_object`), then the set's mass summary beside the reward's Gamma prior
+(mean 0.25 kg, sd 0.224 kg); ``--json`` prints ``{"objects": [...], "summary": {...}, "prior": {...},
+"max_mass": 0.6, "rejected": [...]}``. A source that cannot be used (a malformed spec, a missing or broken file)
+is bad input (exit 2); a folder's broken files are listed as rejected; exit 1 when no object loaded.
 ``--preview`` draws a contact sheet of procedural objects at difficulty levels 1-3 (OUT.png is checked before
 any drawing; an existing file is only replaced if this command drew it, or with ``--overwrite``).
 """
@@ -21,13 +28,18 @@ import argparse
 import json
 import os
 import sys
+import warnings
+from typing import TYPE_CHECKING
 
 import trimesh
 
-from dexjax.cli import add_overwrite_flag, check_output_file, command, is_dexjax_png, stamp_png
+from dexjax.cli import add_overwrite_flag, check_output_file, command, is_dexjax_png, report_failure, stamp_png
 from dexjax.objects.builtin import resolve_mesh
 from dexjax.objects.collision import cached_collision_hulls
 from dexjax.objects.folder import FolderReport, emit_warnings, load_mesh_folder
+
+if TYPE_CHECKING:
+  from dexjax.objects.masses import ObjectMass
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -37,7 +49,7 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--per-level', type=int, metavar='N', help='objects per difficulty level in the preview')
   p.add_argument('--seed', type=int, metavar='S', help='random seed of the preview')
   add_overwrite_flag(p)
-  sub = p.add_subparsers(dest='command', metavar='{check,hulls}')
+  sub = p.add_subparsers(dest='command', metavar='{check,hulls,masses}')
   check = sub.add_parser('check', help='load a folder of meshes and report each file')
   check.add_argument('dir', metavar='DIR', help='folder of mesh files')
   check.add_argument('--json', action='store_true', help='print the report as JSON on stdout')
@@ -48,6 +60,12 @@ def _parser() -> argparse.ArgumentParser:
   hulls.add_argument('--max-hulls', type=int, default=8, help='maximum convex pieces (default 8)')
   hulls.add_argument('--max-vertices', type=int, default=64, help='maximum vertices per piece (default 64)')
   hulls.add_argument('--scale', type=float, default=1.0, help='unit scale to metres, e.g. 0.001 for millimetres')
+  masses = sub.add_parser('masses', help="print each object's size, density and mass beside the reward's prior")
+  masses.add_argument('sources', nargs='+', metavar='SOURCE',
+                      help="object sources: 'procedural:L1/0:25@77', 'builtin:all', mesh files or folders")
+  masses.add_argument('--json', action='store_true', help='print the table and summary as JSON on stdout')
+  masses.add_argument('--scale', type=float, default=1.0, help='unit scale of mesh files to metres')
+  masses.add_argument('--recursive', action='store_true', help='also read the sub-directories of folders')
   return p
 
 
@@ -107,6 +125,47 @@ def _hulls(args: argparse.Namespace) -> int:
   return 0
 
 
+def _masses(args: argparse.Namespace) -> int:
+  from dexjax.objects.masses import mass_summary, object_masses, prior_summary  # Imported lazily: JAX, MuJoCo.
+  from dexjax.objects.procedural import MAX_MASS
+  from dexjax.objects.sets import expand_object_sources, load_object_set
+  report = load_object_set(args.sources, scale=args.scale, recursive=args.recursive)
+  top_level = set(expand_object_sources(args.sources))
+  for r in report.rejected:
+    if r.file in top_level:  # A source itself, not a file in a folder: bad input.
+      raise ValueError(f'{r.file}: {r.reason}')
+  rows = object_masses(report.loaded)
+  summary = mass_summary([r.mass for r in rows]) if rows else None
+  if args.json:
+    rejected = [{'file': r.file, 'reason': r.reason} for r in report.rejected]
+    print(json.dumps({'objects': [r.to_json() for r in rows], 'summary': summary, 'prior': prior_summary(),
+                      'max_mass': MAX_MASS, 'rejected': rejected}))
+  else:
+    _print_masses(rows, summary, prior_summary(), MAX_MASS)
+  for r in report.rejected:
+    warnings.warn(f'rejected {r.file}: {r.reason}', stacklevel=1)
+  return 0 if rows else report_failure(f"no object of {' '.join(args.sources)} could be loaded")
+
+
+def _print_masses(rows: list[ObjectMass], summary: dict[str, float] | None, prior: dict[str, float],
+                  max_mass: float) -> None:
+  """One line per object, then the set's summary beside the prior's."""
+  table = [(r.name, r.family or '-', r.material or '-', ' x '.join(f'{100 * e:.1f}' for e in r.extents),
+            f'{r.volume * 1e6:.1f}', f'{r.density:.0f}', f'{r.mass:.3f}') for r in rows]
+  header = ('name', 'family', 'material', 'extents (cm)', 'volume (cm^3)', 'density (kg/m^3)', 'mass (kg)')
+  widths = [max(len(line[i]) for line in [header, *table]) for i in range(len(header))]
+  for line in [header, *table]:
+    print('  '.join(f'{cell:<{w}}' if i < 4 else f'{cell:>{w}}' for i, (cell, w) in enumerate(zip(line, widths))))
+  if summary is not None:
+    print(f"{summary['count']} objects: mean {summary['mean']:.3f} kg, median {summary['median']:.3f}, quartiles "
+          f"{summary['q25']:.3f}-{summary['q75']:.3f}, min {summary['min']:.3f}, max {summary['max']:.3f}; "
+          f"{summary['above_prior_mean']:.0%} above the prior's mean {prior['mean']:.2f} kg, "
+          f"{summary['above_max_mass']:.0%} above MAX_MASS {max_mass} kg")
+  print(f"prior (Gamma, mean {prior['mean']:.2f} kg, sd {prior['sd']:.3f} kg): median {prior['median']:.3f}, "
+        f"quartiles {prior['q25']:.3f}-{prior['q75']:.3f}; {prior['above_prior_mean']:.0%} above its mean, "
+        f"{prior['above_max_mass']:.0%} above {max_mass} kg")
+
+
 def _preview(args: argparse.Namespace) -> int:
   if args.per_level is not None and args.per_level <= 0:
     raise ValueError(f'--per-level: expected an integer >= 1, got {args.per_level}')
@@ -131,10 +190,12 @@ def main(argv: list[str] | None = None) -> int:
     return _check(args)
   if args.command == 'hulls':
     return _hulls(args)
+  if args.command == 'masses':
+    return _masses(args)
   if args.preview:
     return _preview(args)
   parser.print_usage(sys.stderr)
-  raise ValueError('give a command (check, hulls) or --preview OUT.png')
+  raise ValueError('give a command (check, hulls, masses) or --preview OUT.png')
 
 
 if __name__ == '__main__':

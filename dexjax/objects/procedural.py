@@ -3,17 +3,25 @@
 The seed's benchmark objects come in three difficulty levels: (1) prismatic and circular solids, (2)
 household objects with complex geometry (toys, tools, "blisterpack" objects) and (3) adversarial geometry
 (detailed 3D-printed industrial parts). `procedural_mesh(level, index, seed)` generates an unbounded,
-deterministic stream of watertight meshes for each level; see ``docs/objects.md`` for the families and
-their parameter ranges.
+deterministic stream of watertight, household-sized meshes for each level, each with a material and a
+density; see ``docs/objects.md`` for the families, their parameter ranges and their materials.
 
 * Object ``index`` of a level belongs to family ``index % len(families)`` (`procedural_families`); its
-  parameters are drawn from ``numpy.random.default_rng([seed, level, index, attempt])``, so a mesh is a
-  pure function of (level, index, seed): the same arguments give byte-identical vertices and faces.
+  parameters, including its density, are drawn from ``numpy.random.default_rng([seed, level, index,
+  attempt])``, so a mesh is a pure function of (level, index, seed): the same arguments give byte-identical
+  vertices and faces and the same density.
+* Sizes: level-1 families draw absolute dimensions (largest extent 0.06-0.14 m, every extent >= 0.03 m, four in
+  five at most 0.045 m wide for the jaws; see `procedural_solids`); levels 2 and 3 draw the largest extent
+  log-uniformly in [0.06, 0.15] m (`SIZE_RANGE`), some families in a narrower range with absolute thicknesses
+  for the parts a gripper holds.
+* Mass: density (drawn uniformly in the family's `Material` range) x volume, at most `MAX_MASS` = 0.6 kg (the
+  seed's 0.9 kg suction payload over a safety factor of 1.5) and at least `MIN_MASS`; ``mesh.metadata`` carries
+  ``density`` and ``material``, and `dexjax.sim.heap_object` uses that density.
 * Every returned mesh is watertight, consistently wound with outward normals, one connected body with
   positive volume and a positive-definite inertia, has at most `MAX_FACES` faces, a largest extent in
-  [`MIN_EXTENT`, `MAX_EXTENT`] metres (drawn log-uniformly in [0.03, 0.14] m) and its bounding-box centre
-  at the origin (the built-in objects' convention). A draw that fails these checks is redrawn with the next
-  ``attempt`` (rare; deterministic).
+  [`MIN_EXTENT`, `MAX_EXTENT`] metres and its bounding-box centre at the origin (the built-in objects'
+  convention). A draw that fails these checks (or the mass bounds, or level 1's sizes) is redrawn with the
+  next ``attempt`` (deterministic).
 * Object specs: ``'procedural:L{level}/{index}'`` or ``'procedural:L{level}/{index}@{seed}'`` (e.g.
   ``'procedural:L2/17@3'``), accepted by `dexjax.objects.resolve_mesh` / `load_object_model`.
 """
@@ -27,13 +35,24 @@ import manifold3d
 import numpy as np
 import trimesh
 
+from dexjax.grippers import SUCTION_RATED_MASS_KG
 from dexjax.objects.procedural_adversarial import LEVEL3_FAMILIES
 from dexjax.objects.procedural_household import LEVEL2_FAMILIES
-from dexjax.objects.procedural_shapes import LEVEL1_FAMILIES
+from dexjax.objects.procedural_materials import Material
+from dexjax.objects.procedural_shapes import SIZE_RANGE
 from dexjax.objects.procedural_shapes import Manifold
 from dexjax.objects.procedural_shapes import Params
 from dexjax.objects.procedural_shapes import ShapeFamily
-from dexjax.objects.procedural_shapes import log_uniform
+from dexjax.objects.procedural_shapes import draw_extent
+from dexjax.objects.procedural_solids import LEVEL1_EXTENT_RANGE
+from dexjax.objects.procedural_solids import LEVEL1_FAMILIES
+from dexjax.objects.procedural_solids import LEVEL1_MIN_THICKNESS
+
+__all__ = [
+    'PROCEDURAL_PREFIX', 'PROCEDURAL_LEVELS', 'MIN_EXTENT', 'MAX_EXTENT', 'MAX_FACES', 'MAX_MASS', 'MIN_MASS',
+    'procedural_families', 'procedural_material', 'procedural_params', 'procedural_mesh', 'procedural_spec',
+    'procedural_specs', 'parse_procedural_spec', 'procedural_spec_mesh', 'procedural_mesh_problems',
+]
 
 PROCEDURAL_PREFIX: str = 'procedural:'
 """Prefix of procedural object specs, e.g. ``'procedural:L2/17@3'``."""
@@ -41,17 +60,25 @@ PROCEDURAL_PREFIX: str = 'procedural:'
 PROCEDURAL_LEVELS: tuple[int, ...] = (1, 2, 3)
 """The difficulty levels."""
 
-MIN_EXTENT: float = 0.02
-"""Smallest allowed largest extent of a procedural object, metres."""
+MIN_EXTENT: float = SIZE_RANGE[0]
+"""Smallest allowed largest extent of a procedural object, metres (0.06)."""
 
-MAX_EXTENT: float = 0.15
-"""Largest allowed largest extent of a procedural object, metres."""
+MAX_EXTENT: float = SIZE_RANGE[1]
+"""Largest allowed largest extent of a procedural object, metres (0.15)."""
 
 MAX_FACES: int = 5000
 """Face-count cap of a procedural mesh (keeps the signed distance build fast)."""
 
-_SIZE_RANGE = (0.03, 0.14)  # Drawn largest extent (log-uniform), metres.
-_MAX_ATTEMPTS = 20
+MAX_MASS: float = SUCTION_RATED_MASS_KG
+"""Heaviest procedural object, kg (0.6): the seed's suction payload (about 0.9 kg) over the safety factor 1.5 that
+Schmalz quotes from the German accident-prevention regulation (UVV) for vacuum grippers
+(`dexjax.grippers.SUCTION_RATED_MASS_KG`), so that the cup can lift every object by construction."""
+
+MIN_MASS: float = 0.01
+"""Lightest procedural object, kg (the lower clip of the default mass rule, `dexjax.sim.DEFAULT_MASS_RANGE`)."""
+
+_MAX_ATTEMPTS = 40
+_EXTENT_TOLERANCE = 1e-9  # metres: rounding of the rescaled vertices.
 _MIN_RELATIVE_VOLUME = 1e-3  # volume >= this * extent^3.
 _MIN_RELATIVE_INERTIA = 1e-6  # unit-mass principal moments >= this * extent^2.
 _SPEC_PATTERN = re.compile(r'L([0-9])/(0|[1-9][0-9]*)(?:@(0|[1-9][0-9]*))?')  # No signs, no leading zeros.
@@ -65,6 +92,11 @@ def procedural_families(level: int) -> tuple[str, ...]:
   return tuple(family.name for family in _families(level))
 
 
+def procedural_material(level: int, index: int, seed: int = 0) -> Material:
+  """The `Material` (name, density range in kg/m^3, source) of procedural object ``index`` of ``level``."""
+  return _family(level, index, seed).material
+
+
 def procedural_params(level: int, index: int, seed: int = 0, attempt: int = 0) -> tuple[str, Params]:
   """Draws the parameters of one procedural object without building it (cheap).
 
@@ -75,13 +107,17 @@ def procedural_params(level: int, index: int, seed: int = 0, attempt: int = 0) -
     attempt: redraw counter (0 for the first draw; `procedural_mesh` uses the first draw that validates).
 
   Returns:
-    (family name, parameters): ``parameters['extent']`` is the largest extent in metres; the rest are the
-    family's parameters in model units (largest dimension ~1) and degrees.
+    (family name, parameters): ``parameters['extent']`` is the largest extent in metres (drawn by the family
+    when it returns one, else log-uniformly in `SIZE_RANGE`), ``parameters['density']`` the density in
+    kg/m^3 (uniform in the family's material range, drawn last); the rest are the family's parameters in
+    model units (largest dimension ~1) and degrees.
   """
   family = _family(level, index, seed)
   rng = np.random.default_rng([seed, level, index, attempt])
-  params = {'extent': log_uniform(rng, *_SIZE_RANGE)}
-  params.update(family.draw(rng))
+  params = dict(family.draw(rng))
+  if 'extent' not in params:
+    params['extent'] = draw_extent(rng)
+  params['density'] = float(rng.uniform(*family.material.density))
   return family.name, params
 
 
@@ -95,15 +131,17 @@ def procedural_mesh(level: int, index: int, seed: int = 0) -> trimesh.Trimesh:
 
   Returns:
     A fresh watertight, outward-wound `trimesh.Trimesh` in metres with its bounding-box centre at the
-    origin; ``mesh.metadata`` holds ``name`` (the spec), ``family`` and ``attempt``.
+    origin; ``mesh.metadata`` holds ``name`` (the spec), ``family``, ``attempt``, ``material`` (its name) and
+    ``density`` (kg/m^3; the mass is ``density * mesh.volume``, within [`MIN_MASS`, `MAX_MASS`]).
 
   Raises:
     ValueError: a level outside 1-3 or a negative index / seed.
-    RuntimeError: no valid draw in 20 attempts (not seen in 15,000 objects; the message names the spec).
+    RuntimeError: no valid draw in 40 attempts (not seen in 15,000 objects; the message names the spec).
   """
-  vertices, faces, family, attempt = _procedural_arrays(*_checked(level, index, seed))
+  vertices, faces, family, attempt, density = _procedural_arrays(*_checked(level, index, seed))
   mesh = trimesh.Trimesh(vertices=vertices.copy(), faces=faces.copy(), process=False)
-  mesh.metadata.update(name=procedural_spec(level, index, seed), family=family, attempt=attempt)
+  mesh.metadata.update(name=procedural_spec(level, index, seed), family=family, attempt=attempt,
+                       material=procedural_material(level, index, seed).name, density=density)
   return mesh
 
 
@@ -142,8 +180,17 @@ def procedural_spec_mesh(spec: str) -> trimesh.Trimesh:
   return procedural_mesh(*parse_procedural_spec(spec))
 
 
-def procedural_mesh_problems(mesh: trimesh.Trimesh) -> list[str]:
-  """Checks the guarantees of a procedural mesh; returns the violated ones in words (empty if valid)."""
+def procedural_mesh_problems(mesh: trimesh.Trimesh, *, level: int | None = None,
+                             density: float | None = None) -> list[str]:
+  """Checks the guarantees of a procedural mesh; returns the violated ones in words (empty if valid).
+
+  Args:
+    mesh: the mesh, metres.
+    level: with 1, also checks level 1's sizes (largest extent in `LEVEL1_EXTENT_RANGE`, every extent >=
+      `LEVEL1_MIN_THICKNESS`).
+    density: kg/m^3; default ``mesh.metadata['density']`` when present. With a density, also checks that the
+      mass (density x volume) lies in [`MIN_MASS`, `MAX_MASS`].
+  """
   problems = []
   if len(mesh.faces) > MAX_FACES:
     problems.append(f'{len(mesh.faces)} faces, expected <= {MAX_FACES}')
@@ -151,9 +198,13 @@ def procedural_mesh_problems(mesh: trimesh.Trimesh) -> list[str]:
     problems.append('not watertight')
   if not mesh.is_winding_consistent:
     problems.append('inconsistent winding')
-  extent = float(np.max(mesh.extents))
-  if not MIN_EXTENT <= extent <= MAX_EXTENT:
-    problems.append(f'largest extent {extent:.4g} m, expected within [{MIN_EXTENT}, {MAX_EXTENT}] m')
+  extents = np.asarray(mesh.extents, np.float64)
+  extent = float(np.max(extents))
+  low, high = LEVEL1_EXTENT_RANGE if level == 1 else (MIN_EXTENT, MAX_EXTENT)
+  if not low - _EXTENT_TOLERANCE <= extent <= high + _EXTENT_TOLERANCE:
+    problems.append(f'largest extent {extent:.4g} m, expected within [{low}, {high}] m')
+  if level == 1 and float(np.min(extents)) < LEVEL1_MIN_THICKNESS - _EXTENT_TOLERANCE:
+    problems.append(f'smallest extent {float(np.min(extents)):.4g} m, expected >= {LEVEL1_MIN_THICKNESS} m')
   centre = 0.5 * (mesh.bounds[0] + mesh.bounds[1])
   if np.abs(centre).max() > 1e-9:
     problems.append(f'bounding-box centre {centre.tolist()}, expected the origin')
@@ -168,6 +219,10 @@ def procedural_mesh_problems(mesh: trimesh.Trimesh) -> list[str]:
   moments = np.linalg.eigvalsh(np.asarray(mesh.moment_inertia) / mesh.mass)
   if not moments.min() > _MIN_RELATIVE_INERTIA * extent**2:
     problems.append(f'unit-mass principal moments {moments.tolist()} m^2 are not positive')
+  density = mesh.metadata.get('density') if density is None else density
+  if density is not None and not MIN_MASS <= density * volume <= MAX_MASS:
+    problems.append(f'mass {density * volume:.4g} kg (density {density:.4g} kg/m^3 x volume {volume:.4g} m^3), '
+                    f'expected within [{MIN_MASS}, {MAX_MASS}] kg')
   return problems
 
 
@@ -205,7 +260,7 @@ def _scaled_mesh(solid: Manifold, extent: float) -> trimesh.Trimesh:
 
 
 def _attempt(level: int, index: int, seed: int, attempt: int) -> tuple[trimesh.Trimesh | None, str]:
-  """Builds one draw; returns (mesh, '') or (None, reason)."""
+  """Builds one draw; returns (mesh with ``metadata['density']``, '') or (None, reason)."""
   family = _family(level, index, seed)
   _, params = procedural_params(level, index, seed, attempt)
   try:
@@ -218,13 +273,15 @@ def _attempt(level: int, index: int, seed: int, attempt: int) -> tuple[trimesh.T
   if pieces != 1:
     return None, f'{family.name} build gave {pieces} separate bodies'
   mesh = _scaled_mesh(solid, params['extent'])
-  problems = procedural_mesh_problems(mesh)
+  mesh.metadata['density'] = params['density']
+  problems = procedural_mesh_problems(mesh, level=level)
   return (None, f"{family.name}: {'; '.join(problems)}") if problems else (mesh, '')
 
 
 @functools.lru_cache(maxsize=64)
-def _procedural_arrays(level: int, index: int, seed: int) -> tuple[np.ndarray, np.ndarray, str, int]:
-  """(vertices (V, 3) float64 m, faces (F, 3) int64, family name, attempt) of the first valid draw."""
+def _procedural_arrays(level: int, index: int, seed: int) -> tuple[np.ndarray, np.ndarray, str, int, float]:
+  """(vertices (V, 3) float64 m, faces (F, 3) int64, family name, attempt, density kg/m^3) of the first valid
+  draw."""
   reason = ''
   for attempt in range(_MAX_ATTEMPTS):
     mesh, reason = _attempt(level, index, seed, attempt)
@@ -232,6 +289,6 @@ def _procedural_arrays(level: int, index: int, seed: int) -> tuple[np.ndarray, n
       vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
       vertices.flags.writeable = False
       faces.flags.writeable = False
-      return vertices, faces, _family(level, index, seed).name, attempt
+      return vertices, faces, _family(level, index, seed).name, attempt, float(mesh.metadata['density'])
   raise RuntimeError(
       f'{procedural_spec(level, index, seed)}: no valid mesh after {_MAX_ATTEMPTS} draws (last: {reason})')

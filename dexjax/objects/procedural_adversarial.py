@@ -6,6 +6,11 @@ dimension ~1; the generator rescales to metres): deep thin-walled containers, ri
 jacks (narrow spikes and rods), open wire-frame boxes, noisy blobs (a sphere displaced radially by random
 waves), randomly "evolved" unions and differences of many primitives, 3D-printed-style industrial parts
 (flanges with bolt holes, L-brackets with holes and a gusset) and twisted star prisms.
+
+Household size: the largest extent lies in [0.06, 0.15] m. Where a part is what a gripper would hold, its
+thickness is drawn in metres (the family returns its own ``'extent'`` and divides): containers and twisted
+prisms >= 3 cm across, gears 2-3 cm thick, jack rods 0.8-1.2 cm, wire-frame bars 0.8-1.4 cm, heat-sink fins
+with gaps a 1 cm finger fits in, flanges and brackets 0.6-1.5 cm thick.
 """
 
 from __future__ import annotations
@@ -13,6 +18,9 @@ from __future__ import annotations
 import manifold3d
 import numpy as np
 
+from dexjax.objects.procedural_materials import ALUMINIUM
+from dexjax.objects.procedural_materials import GLASS
+from dexjax.objects.procedural_materials import PRINTED_PLA
 from dexjax.objects.procedural_shapes import ROUND_SEGMENTS
 from dexjax.objects.procedural_shapes import SMALL_SEGMENTS
 from dexjax.objects.procedural_shapes import CrossSection
@@ -24,6 +32,7 @@ from dexjax.objects.procedural_shapes import along_y
 from dexjax.objects.procedural_shapes import box
 from dexjax.objects.procedural_shapes import cylinder
 from dexjax.objects.procedural_shapes import difference
+from dexjax.objects.procedural_shapes import draw_extent
 from dexjax.objects.procedural_shapes import ellipsoid
 from dexjax.objects.procedural_shapes import extrude
 from dexjax.objects.procedural_shapes import largest_piece
@@ -35,9 +44,13 @@ from dexjax.objects.procedural_shapes import rotation_from_uniform
 from dexjax.objects.procedural_shapes import transformed
 from dexjax.objects.procedural_shapes import union
 
+__all__ = ['LEVEL3_FAMILIES']
+
 _ADD = manifold3d.OpType.Add
 _SUBTRACT = manifold3d.OpType.Subtract
 _MIN_GAP = 0.03  # Narrowest slot or web left between cut features, model units.
+_MIN_DIAMETER = 0.03  # Narrowest body of a container or a twisted prism, metres.
+_FINGER_GAP = 0.011  # Gap between heat-sink fins or pins a 1 cm jaw finger fits in, metres.
 
 
 def _ring_points(radii: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -53,7 +66,7 @@ def _draw_deep_container(rng: np.random.Generator) -> Params:
   height = log_uniform(rng, 1.5, 3.5)
   return {'height': height, 'sides': int(rng.choice([0, 4, 5, 6, 8])), 'taper': rng.uniform(0.8, 1.15),
           'wall': rng.uniform(0.03, 0.045) * height, 'bottom': rng.uniform(0.04, 0.08) * height,
-          'has_lip': bool(rng.random() < 0.5)}
+          'has_lip': bool(rng.random() < 0.5), 'extent': draw_extent(rng, max(0.06, _MIN_DIAMETER * height))}
 
 
 def _build_deep_container(p: Params) -> Manifold:
@@ -76,22 +89,24 @@ def _build_deep_container(p: Params) -> Manifold:
 
 
 def _draw_ribbed(rng: np.random.Generator) -> Params:
-  return {'pins': bool(rng.random() < 0.4), 'count': int(rng.integers(5, 13)), 'grid': rng.integers(3, 7, 2),
-          'fin_thickness': rng.uniform(0.03, 0.05), 'pin_radius': rng.uniform(0.025, 0.045),
-          'base': rng.uniform(0.06, 0.14), 'fin_height': rng.uniform(0.3, 0.8), 'depth': rng.uniform(0.4, 1.0)}
+  extent = draw_extent(rng, 0.08)
+  return {'extent': extent, 'pins': bool(rng.random() < 0.4), 'count': int(rng.integers(5, 13)),
+          'grid': rng.integers(3, 7, 2), 'fin_thickness': max(0.03, rng.uniform(0.0045, 0.008) / extent),
+          'pin_radius': rng.uniform(0.003, 0.005) / extent, 'gap': _FINGER_GAP / extent,
+          'base': rng.uniform(0.04, 0.09), 'fin_height': rng.uniform(0.3, 0.8), 'depth': rng.uniform(0.4, 1.0)}
 
 
 def _build_ribbed(p: Params) -> Manifold:
-  base, fin_height, depth = p['base'], p['fin_height'], p['depth']
+  base, fin_height, depth, gap = p['base'], p['fin_height'], p['depth'], p['gap']
   if p['pins']:
-    nx, ny = p['grid']
-    radius = min(p['pin_radius'], 0.5 * (min(1.0 / nx, depth / ny) - _MIN_GAP))
+    radius = p['pin_radius']
+    nx, ny = (max(1, min(int(n), int(length / (2 * radius + gap)))) for n, length in zip(p['grid'], (1.0, depth)))
     pins = [cylinder(radius, fin_height + 0.02, segments=SMALL_SEGMENTS).translate(
         (x, y, base + 0.5 * fin_height - 0.01))
             for x in (np.arange(nx) + 0.5) / nx - 0.5 for y in ((np.arange(ny) + 0.5) / ny - 0.5) * depth]
     return union([box((1.0, depth, base), (0.0, 0.0, 0.5 * base)), *pins])
   thickness = p['fin_thickness']
-  count = min(p['count'], int((1.0 - thickness) / (thickness + _MIN_GAP)) + 1)
+  count = min(p['count'], int((1.0 - thickness) / (thickness + gap)) + 1)
   xs = np.linspace(-0.5 + 0.5 * thickness, 0.5 - 0.5 * thickness, count)
   bars = [rectangle(1.0, base, (0.0, 0.5 * base))]
   bars += [rectangle(thickness, fin_height + 0.01, (x, base + 0.5 * fin_height - 0.005)) for x in xs]
@@ -103,8 +118,10 @@ def _build_ribbed(p: Params) -> Manifold:
 
 
 def _draw_gear(rng: np.random.Generator) -> Params:
-  return {'teeth': int(rng.integers(12, 37)), 'tooth_depth': rng.uniform(0.05, 0.1),
-          'thickness': rng.uniform(0.1, 0.35), 'bore': rng.uniform(0.05, 0.12), 'holes': int(rng.integers(3, 7)),
+  extent = draw_extent(rng)  # The gear's diameter.
+  return {'extent': extent, 'teeth': int(rng.integers(12, 37)), 'tooth_depth': rng.uniform(0.05, 0.1),
+          'thickness': rng.uniform(0.02, 0.03) / extent, 'bore': rng.uniform(0.05, 0.12),
+          'holes': int(rng.integers(3, 7)),
           'has_hub': bool(rng.random() < 0.5), 'hub_margin': rng.uniform(0.06, 0.12),
           'hub_height': rng.uniform(0.1, 0.3), 'twist': float(rng.uniform(0.0, 1.0) < 0.3) * rng.uniform(10, 30)}
 
@@ -143,10 +160,11 @@ def _build_gear(p: Params) -> Manifold:
 def _draw_spiky(rng: np.random.Generator) -> Params:
   count = int(rng.integers(6, 17))
   directions = rng.normal(size=(16, 3))
-  return {'jack': bool(rng.random() < 0.3), 'core': rng.uniform(0.18, 0.3, 3), 'count': count,
+  extent = draw_extent(rng, 0.08)
+  return {'extent': extent, 'jack': bool(rng.random() < 0.3), 'core': rng.uniform(0.18, 0.3, 3), 'count': count,
           'directions': directions / np.linalg.norm(directions, axis=1, keepdims=True),
           'lengths': rng.uniform(0.25, 0.45, 16), 'base_radius': rng.uniform(0.035, 0.06),
-          'rod_radius': rng.uniform(0.03, 0.045)}
+          'rod_radius': rng.uniform(0.004, 0.006) / extent}
 
 
 def _build_spiky(p: Params) -> Manifold:
@@ -169,8 +187,9 @@ def _build_spiky(p: Params) -> Manifold:
 
 
 def _draw_wire_frame(rng: np.random.Generator) -> Params:
-  return {'size': np.r_[1.0, rng.uniform(0.5, 1.0, 2)], 'bar': rng.uniform(0.05, 0.09),
-          'brace': bool(rng.random() < 0.5)}
+  extent, size = draw_extent(rng, 0.08), np.r_[1.0, rng.uniform(0.5, 1.0, 2)]
+  bar = min(rng.uniform(0.008, 0.014) / extent, 0.2 * size.min())  # Leaves every face open.
+  return {'extent': extent, 'size': size, 'bar': bar, 'brace': bool(rng.random() < 0.5)}
 
 
 def _build_wire_frame(p: Params) -> Manifold:
@@ -182,7 +201,7 @@ def _build_wire_frame(p: Params) -> Manifold:
     return frame
   y = 0.5 * sy - 0.5 * bar
   brace = rod((-0.5 * sx + 0.5 * bar, y, -0.5 * sz + 0.5 * bar), (0.5 * sx - 0.5 * bar, y, 0.5 * sz - 0.5 * bar),
-              0.5 * bar, segments=8)
+              0.42 * bar, segments=8)  # Inside the bars: no face coincides with theirs.
   return union([frame, brace])
 
 
@@ -262,13 +281,15 @@ def _build_evolved(p: Params) -> Manifold:
 
 
 def _draw_industrial(rng: np.random.Generator) -> Params:
-  return {'bracket': bool(rng.random() < 0.5), 'shape': rng.uniform(0.0, 1.0, 8),
-          'holes': rng.integers(1, 4, 2), 'bolts': int(rng.integers(3, 9)), 'has_gusset': bool(rng.random() < 0.6)}
+  extent = draw_extent(rng, 0.08)
+  return {'extent': extent, 'bracket': bool(rng.random() < 0.5), 'shape': rng.uniform(0.0, 1.0, 8),
+          'holes': rng.integers(1, 4, 2), 'bolts': int(rng.integers(3, 9)), 'has_gusset': bool(rng.random() < 0.6),
+          'plate': rng.uniform(0.006, 0.015) / extent}
 
 
 def _build_flange(p: Params) -> Manifold:
   s = p['shape']
-  disc, hub, hub_height = 0.08 + 0.1 * s[0], 0.15 + 0.13 * s[1], 0.15 + 0.3 * s[2]
+  disc, hub, hub_height = p['plate'], 0.15 + 0.13 * s[1], 0.15 + 0.3 * s[2]
   bore = 0.05 + (hub - 0.1) * s[3]
   bolt_circle = 0.5 * (hub + 0.5)
   bolt = min(0.03 + 0.025 * s[4], 0.5 * (0.5 - hub) - _MIN_GAP, np.pi * bolt_circle / p['bolts'] - _MIN_GAP)
@@ -281,7 +302,7 @@ def _build_flange(p: Params) -> Manifold:
 
 def _build_bracket(p: Params) -> Manifold:
   s = p['shape']
-  thickness, rise, width = 0.06 + 0.06 * s[0], 0.5 + 0.5 * s[1], 0.3 + 0.3 * s[2]
+  thickness, rise, width = p['plate'], 0.5 + 0.5 * s[1], 0.3 + 0.3 * s[2]
   radius = min(0.035 + 0.035 * s[3], 0.3 * width)
   foot = box((1.0, width, thickness), (0.0, 0.0, 0.5 * thickness))
   upright = box((thickness, width, rise), (-0.5 + 0.5 * thickness, 0.0, 0.5 * rise))
@@ -317,8 +338,10 @@ def _build_industrial(p: Params) -> Manifold:
 
 
 def _draw_twisted(rng: np.random.Generator) -> Params:
-  return {'points': int(rng.integers(3, 9)), 'inner_ratio': rng.uniform(0.35, 0.75),
-          'twist': rng.uniform(90.0, 360.0), 'height_over_diameter': log_uniform(rng, 0.8, 3.0)}
+  p = {'points': int(rng.integers(3, 9)), 'inner_ratio': rng.uniform(0.35, 0.75),
+       'twist': rng.uniform(90.0, 360.0), 'height_over_diameter': log_uniform(rng, 0.8, 3.0)}
+  p['extent'] = draw_extent(rng, max(0.06, _MIN_DIAMETER * max(1.0, p['height_over_diameter'])))
+  return p
 
 
 def _build_twisted(p: Params) -> Manifold:
@@ -330,14 +353,14 @@ def _build_twisted(p: Params) -> Manifold:
 
 
 LEVEL3_FAMILIES: tuple[ShapeFamily, ...] = (
-    ShapeFamily('deep_container', _draw_deep_container, _build_deep_container),
-    ShapeFamily('ribbed', _draw_ribbed, _build_ribbed),
-    ShapeFamily('gear', _draw_gear, _build_gear),
-    ShapeFamily('spiky', _draw_spiky, _build_spiky),
-    ShapeFamily('wire_frame', _draw_wire_frame, _build_wire_frame),
-    ShapeFamily('noisy_blob', _draw_noisy_blob, _build_noisy_blob),
-    ShapeFamily('evolved', _draw_evolved, _build_evolved),
-    ShapeFamily('industrial', _draw_industrial, _build_industrial),
-    ShapeFamily('twisted', _draw_twisted, _build_twisted),
+    ShapeFamily('deep_container', _draw_deep_container, _build_deep_container, GLASS),
+    ShapeFamily('ribbed', _draw_ribbed, _build_ribbed, ALUMINIUM),
+    ShapeFamily('gear', _draw_gear, _build_gear, PRINTED_PLA),
+    ShapeFamily('spiky', _draw_spiky, _build_spiky, PRINTED_PLA),
+    ShapeFamily('wire_frame', _draw_wire_frame, _build_wire_frame, PRINTED_PLA),
+    ShapeFamily('noisy_blob', _draw_noisy_blob, _build_noisy_blob, PRINTED_PLA),
+    ShapeFamily('evolved', _draw_evolved, _build_evolved, PRINTED_PLA),
+    ShapeFamily('industrial', _draw_industrial, _build_industrial, PRINTED_PLA),
+    ShapeFamily('twisted', _draw_twisted, _build_twisted, PRINTED_PLA),
 )
 """Level 3 (adversarial geometry: fine detail, deep concavities, narrow parts, noisy and evolved shapes)."""

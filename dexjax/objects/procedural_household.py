@@ -5,6 +5,12 @@ rescales to metres): mugs and cups (with a torus handle), bottles (revolved prof
 profiles hollowed by a constant wall), letter shapes (L, T, U, H, E, +), tools (hammer, spatula,
 screwdriver, wrench), toys (car, figure, stacked blocks) and blister packs (a thin card with a raised
 bubble and an optional hanging hole).
+
+Household size: the largest extent lies in [0.06, 0.15] m. The parts a gripper holds are drawn in metres
+(the family returns its own ``'extent'`` and divides): a bowl is >= 2.5 cm deep, a bottle's body >= 3 cm
+across, a letter 2-4.5 cm thick, a tool's handle or grip 2-3.2 cm across and a wrench's bar 2.5-3.2 cm wide,
+a blister's bubble 1.5-3.5 cm high, so that no object is too thin for the jaws and too narrow for the suction
+cup at once.
 """
 
 from __future__ import annotations
@@ -12,6 +18,12 @@ from __future__ import annotations
 import manifold3d
 import numpy as np
 
+from dexjax.objects.procedural_materials import ABS
+from dexjax.objects.procedural_materials import FILLED_BOTTLE
+from dexjax.objects.procedural_materials import PACKAGED_GOODS
+from dexjax.objects.procedural_materials import PLASTIC_TOOL
+from dexjax.objects.procedural_materials import PORCELAIN
+from dexjax.objects.procedural_materials import SOFTWOOD
 from dexjax.objects.procedural_shapes import ROUND_SEGMENTS
 from dexjax.objects.procedural_shapes import SMALL_SEGMENTS
 from dexjax.objects.procedural_shapes import CrossSection
@@ -23,6 +35,7 @@ from dexjax.objects.procedural_shapes import box
 from dexjax.objects.procedural_shapes import capsule
 from dexjax.objects.procedural_shapes import cylinder
 from dexjax.objects.procedural_shapes import difference
+from dexjax.objects.procedural_shapes import draw_extent
 from dexjax.objects.procedural_shapes import ellipsoid
 from dexjax.objects.procedural_shapes import extrude
 from dexjax.objects.procedural_shapes import log_uniform
@@ -32,6 +45,8 @@ from dexjax.objects.procedural_shapes import revolve
 from dexjax.objects.procedural_shapes import rod
 from dexjax.objects.procedural_shapes import rounded_box
 from dexjax.objects.procedural_shapes import union
+
+__all__ = ['LEVEL2_FAMILIES', 'mirrored_profile', 'hollowed']
 
 _ROUND = manifold3d.JoinType.Round
 
@@ -87,12 +102,18 @@ def _build_mug(p: Params) -> Manifold:
 # Bottles and bowls (revolved profiles).
 
 
+_MIN_BODY_DIAMETER = 0.03  # A bottle's body, metres.
+
+
 def _draw_bottle(rng: np.random.Generator) -> Params:
   neck = rng.uniform(0.1, 0.22)
-  return {'body_height': log_uniform(rng, 0.9, 2.2), 'shoulder_height': rng.uniform(0.15, 0.5),
-          'shoulder_power': rng.uniform(0.6, 2.0), 'neck_radius': neck, 'neck_height': rng.uniform(0.1, 0.4),
-          'cap_radius': neck * rng.uniform(1.0, 1.35), 'cap_height': rng.uniform(0.08, 0.2),
-          'waist': rng.uniform(0.0, 0.15)}
+  p = {'body_height': log_uniform(rng, 0.9, 2.2), 'shoulder_height': rng.uniform(0.15, 0.5),
+       'shoulder_power': rng.uniform(0.6, 2.0), 'neck_radius': neck, 'neck_height': rng.uniform(0.1, 0.4),
+       'cap_radius': neck * rng.uniform(1.0, 1.35), 'cap_height': rng.uniform(0.08, 0.2),
+       'waist': rng.uniform(0.0, 0.15)}
+  height = p['body_height'] + p['shoulder_height'] + p['neck_height'] + p['cap_height']  # In body diameters.
+  p['extent'] = draw_extent(rng, max(0.06, _MIN_BODY_DIAMETER * height))
+  return p
 
 
 def _build_bottle(p: Params) -> Manifold:
@@ -111,7 +132,7 @@ def _build_bottle(p: Params) -> Manifold:
 
 def _draw_bowl(rng: np.random.Generator) -> Params:
   return {'depth': rng.uniform(0.2, 0.55), 'foot_radius': rng.uniform(0.12, 0.3),
-          'bowl_wall': rng.uniform(0.035, 0.06),          'flare': rng.uniform(0.35, 1.0)}
+          'bowl_wall': rng.uniform(0.035, 0.06), 'flare': rng.uniform(0.35, 1.0)}
 
 
 def _build_bowl(p: Params) -> Manifold:
@@ -121,8 +142,13 @@ def _build_bowl(p: Params) -> Manifold:
   return revolve(hollowed(profile, p['bowl_wall'], p['depth']))
 
 
+_MIN_BOWL_DEPTH = 0.025  # Metres: a bowl's rim stands high enough for the jaws.
+
+
 def _draw_vessel(rng: np.random.Generator) -> Params:
-  return {'bowl': bool(rng.random() < 0.35), **_draw_mug(rng), **_draw_bowl(rng)}
+  p = {'bowl': bool(rng.random() < 0.35), **_draw_mug(rng), **_draw_bowl(rng), 'extent': draw_extent(rng)}
+  p['depth'] = max(p['depth'], _MIN_BOWL_DEPTH / p['extent'])  # The bowl's rim diameter is its extent.
+  return p
 
 
 def _build_vessel(p: Params) -> Manifold:
@@ -136,9 +162,11 @@ _LETTERS = ('L', 'T', 'U', 'H', 'E', '+')
 
 
 def _draw_letter(rng: np.random.Generator) -> Params:
-  stroke = rng.uniform(0.14, 0.28)
-  return {'letter': _LETTERS[int(rng.integers(len(_LETTERS)))], 'height': rng.uniform(0.6, 1.2),
-          'stroke': stroke, 'depth': rng.uniform(0.12, 0.45), 'rounding': rng.uniform(0.0, 0.45) * stroke}
+  extent, letter, height = draw_extent(rng, 0.09), _LETTERS[int(rng.integers(len(_LETTERS)))], rng.uniform(0.6, 1.2)
+  unit = extent / max(1.0, height)  # Metres per model unit.
+  stroke = min(rng.uniform(0.015, 0.03) / unit, 0.25 * min(1.0, height))  # Leaves room for an E's three bars.
+  return {'extent': extent, 'letter': letter, 'height': height, 'stroke': stroke,
+          'depth': rng.uniform(0.02, 0.045) / unit, 'rounding': rng.uniform(0.0, 0.45) * stroke}
 
 
 def _letter_bars(letter: str, width: float, height: float, s: float) -> list[tuple[float, float, float, float]]:
@@ -168,25 +196,31 @@ _TOOLS = ('hammer', 'spatula', 'screwdriver', 'wrench')
 
 
 def _draw_tool(rng: np.random.Generator) -> Params:
-  return {'tool': _TOOLS[int(rng.integers(len(_TOOLS)))], 'handle_radius': rng.uniform(0.035, 0.06),
-          'head': rng.uniform(0.0, 1.0, 4), 'round_head': bool(rng.random() < 0.4)}
+  extent = draw_extent(rng, 0.1)  # The tool's length.
+  metres = lambda low, high: float(rng.uniform(low, high)) / extent  # A length drawn in metres, model units.
+  return {'extent': extent, 'tool': _TOOLS[int(rng.integers(len(_TOOLS)))], 'head': rng.uniform(0.0, 1.0, 4),
+          'round_head': bool(rng.random() < 0.4), 'handle_radius': metres(0.01, 0.014),
+          'grip_radius': metres(0.011, 0.016),
+          'bar_width': metres(0.025, 0.032), 'bar_thickness': metres(0.006, 0.01),
+          'ring_over_width': float(rng.uniform(1.5, 2.0))}
 
 
 def _build_tool(p: Params) -> Manifold:
   h, r = p['head'], p['handle_radius']
   if p['tool'] == 'hammer':
-    size = np.r_[0.08 + 0.07 * h[0], 0.08 + 0.07 * h[1], 0.3 + 0.2 * h[2]]
+    side = 2 * r * (1.25 + 0.55 * h[:2])  # The head is thicker than the handle.
+    size = np.r_[side, min(max(0.3 + 0.2 * h[2], 1.3 * side.max()), 0.7)]
     handle = rod((-0.5, 0, 0), (0.5 - 0.5 * size[0], 0, 0), r, segments=24)
     head = (cylinder(0.5 * size[0], size[2], segments=24) if p['round_head'] else box(size))
     return union([handle, head.translate((0.5 - 0.5 * size[0], 0.0, 0.0))])
   if p['tool'] == 'spatula':
-    blade = np.r_[0.3 + 0.15 * h[0], 0.18 + 0.12 * h[1], 0.03 + 0.015 * h[2]]
+    blade = np.r_[0.3 + 0.15 * h[0], 0.25 + 0.15 * h[1], 0.03 + 0.015 * h[2]]
     handle = capsule(r, 0.65, 16).rotate((0.0, 90.0, 0.0)).translate((-0.175, 0.0, 0.0))
     plate = rounded_box(blade, 0.45 * blade[2]).translate((0.1 + 0.5 * blade[0], 0.0, 0.0))
     neck = rod((0.1, 0, 0), (0.2, 0, 0), min(r, 0.45 * blade[2]), radius_end=0.45 * blade[2])
     return union([handle, neck, plate])
   if p['tool'] == 'screwdriver':
-    grip_radius, grip_length = 0.07 + 0.04 * h[0], 0.35 + 0.1 * h[1]
+    grip_radius, grip_length = p['grip_radius'], 0.35 + 0.1 * h[1]
     shaft_radius, shaft_length = 0.022 + 0.013 * h[2], 0.4 + 0.2 * h[3]
     grip = rod((-0.5, 0, 0), (-0.5 + grip_length, 0, 0), grip_radius, segments=24)
     tip_x = -0.5 + grip_length + shaft_length
@@ -194,8 +228,9 @@ def _build_tool(p: Params) -> Manifold:
     tip = box((0.08, 2.4 * shaft_radius, max(0.03, shaft_radius)), (tip_x, 0.0, 0.0))
     return union([grip, shaft, tip])
   # Wrench: a flat bar with a closed hexagonal ring at one end and an open jaw at the other.
-  width, thickness, ring = 0.08 + 0.05 * h[0], 0.03 + 0.02 * h[1], 0.1 + 0.05 * h[2]
-  bar = rounded_box((1.0 - 2 * ring, width, thickness), 0.45 * thickness)
+  width, thickness = p['bar_width'], p['bar_thickness']
+  ring = 0.5 * width * p['ring_over_width']  # Radius of the ring ends.
+  bar = rounded_box((1.0 - 2 * ring, width, thickness), 0.25 * thickness)  # A flat top >= 2 cm wide.
   ends = [cylinder(ring, thickness, segments=32).translate((x, 0.0, 0.0)) for x in (-0.5 + ring, 0.5 - ring)]
   hexagon = cylinder(0.5 * ring, 2 * thickness, segments=6).translate((-0.5 + ring, 0.0, 0.0))
   slot = box((ring * 1.5, ring * (0.8 + 0.3 * h[3]), 2 * thickness), (0.5, 0.0, 0.0))
@@ -209,7 +244,8 @@ _TOYS = ('car', 'figure', 'blocks')
 
 
 def _draw_toy(rng: np.random.Generator) -> Params:
-  return {'toy': _TOYS[int(rng.integers(len(_TOYS)))], 'shape': rng.uniform(0.0, 1.0, 8),
+  return {'extent': draw_extent(rng, 0.08), 'toy': _TOYS[int(rng.integers(len(_TOYS)))],
+          'shape': rng.uniform(0.0, 1.0, 8),
           'block_kinds': rng.integers(0, 3, 6), 'block_sizes': rng.uniform(0.15, 0.4, (6, 3)),
           'block_places': rng.uniform(-0.4, 0.4, (6, 2)), 'block_turns': rng.uniform(0.0, 90.0, 6),
           'block_count': int(rng.integers(3, 7))}
@@ -276,11 +312,13 @@ _BUBBLES = ('dome', 'pill', 'box')
 
 
 def _draw_blister(rng: np.random.Generator) -> Params:
-  return {'height': rng.uniform(0.6, 1.1), 'thickness': rng.uniform(0.03, 0.05), 'corner': rng.uniform(0.02, 0.08),
-          'bubble': _BUBBLES[int(rng.integers(len(_BUBBLES)))], 'bubble_size': rng.uniform(0.35, 0.7, 2),
-          'bubble_height': rng.uniform(0.12, 0.35), 'bubble_shift': rng.uniform(-0.1, 0.1),
-          'has_hole': bool(rng.random() < 0.7), 'hole_radius': rng.uniform(0.03, 0.05),
-          'slot_hole': bool(rng.random() < 0.5)}
+  extent, height = draw_extent(rng, 0.08), rng.uniform(0.6, 1.1)
+  unit = extent / max(1.0, height)  # Metres per model unit.
+  return {'extent': extent, 'height': height, 'thickness': rng.uniform(0.03, 0.05),
+          'corner': rng.uniform(0.02, 0.08), 'bubble': _BUBBLES[int(rng.integers(len(_BUBBLES)))],
+          'bubble_size': rng.uniform(0.35, 0.7, 2), 'bubble_height': rng.uniform(0.015, 0.035) / unit,
+          'bubble_shift': rng.uniform(-0.1, 0.1), 'has_hole': bool(rng.random() < 0.7),
+          'hole_radius': rng.uniform(0.03, 0.05), 'slot_hole': bool(rng.random() < 0.5)}
 
 
 def _build_blister(p: Params) -> Manifold:
@@ -309,11 +347,11 @@ def _build_blister(p: Params) -> Manifold:
 
 
 LEVEL2_FAMILIES: tuple[ShapeFamily, ...] = (
-    ShapeFamily('vessel', _draw_vessel, _build_vessel),
-    ShapeFamily('bottle', _draw_bottle, _build_bottle),
-    ShapeFamily('letter', _draw_letter, _build_letter),
-    ShapeFamily('tool', _draw_tool, _build_tool),
-    ShapeFamily('toy', _draw_toy, _build_toy),
-    ShapeFamily('blister', _draw_blister, _build_blister),
+    ShapeFamily('vessel', _draw_vessel, _build_vessel, PORCELAIN),
+    ShapeFamily('bottle', _draw_bottle, _build_bottle, FILLED_BOTTLE),
+    ShapeFamily('letter', _draw_letter, _build_letter, ABS),
+    ShapeFamily('tool', _draw_tool, _build_tool, PLASTIC_TOOL),
+    ShapeFamily('toy', _draw_toy, _build_toy, SOFTWOOD),
+    ShapeFamily('blister', _draw_blister, _build_blister, PACKAGED_GOODS),
 )
 """Level 2 (household objects with complex geometry: vessels, bottles, letters, tools, toys, blister packs)."""

@@ -1,15 +1,18 @@
-"""Building blocks of the procedural object generator and its level-1 families (prismatic and circular solids).
+"""Building blocks of the procedural object generator: the `ShapeFamily` record, random draws and primitives.
 
 The generator (`dexjax.objects.procedural`) draws the parameters of a *shape family* from a
 `numpy.random.Generator` and then builds a `manifold3d.Manifold` from them. Families work in *model units*:
-their largest dimension is about 1 and the generator rescales the result to a drawn size in metres, so every
-length below is relative to the object's largest extent. Thin features (walls, rods, fins, plates) are at
+their largest dimension is about 1 and the generator rescales the result to the object's largest extent in
+metres, ``params['extent']``. That extent is drawn by the generator (log-uniform in `SIZE_RANGE`) unless the
+family draws it itself: a family whose parts need absolute sizes (level 1's boxes and cans, at least 3 cm
+thick; level 2's tool handles and letter strokes, at least 1.5-2 cm) returns ``'extent'`` (metres) from its
+``draw`` and expresses its other lengths as metres / extent. Thin features (walls, rods, fins, plates) are at
 least about 3 % of the largest extent, i.e. at least 2-3 voxels of the default 100^3 signed distance grid.
 
-This module holds the `ShapeFamily` record, small `manifold3d` constructors used by all levels (boxes,
-cylinders, ellipsoids, capsules, revolved profiles, extruded polygons, booleans) and the level-1 families:
-box, rounded box, cylinder, disc, n-gonal prism, frustum, ellipsoid / sphere and capsule. Every level-1
-shape is convex.
+This module holds the `ShapeFamily` record, the random draws and small `manifold3d` constructors used by all
+levels (boxes, cylinders, ellipsoids, capsules, revolved profiles, extruded polygons, booleans). The families
+are in `procedural_solids` (level 1), `procedural_household` (level 2) and `procedural_adversarial` (level 3);
+their materials in `procedural_materials`.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ from typing import Any
 import manifold3d
 import numpy as np
 import trimesh
+
+from dexjax.objects.procedural_materials import Material
 
 Manifold = manifold3d.Manifold
 CrossSection = manifold3d.CrossSection
@@ -36,6 +41,9 @@ SPHERE_SEGMENTS: int = 32
 SMALL_SEGMENTS: int = 16
 """Segments of a full circle for small parts (pins, spikes, holes, rounded corners)."""
 
+SIZE_RANGE: tuple[float, float] = (0.06, 0.15)
+"""Range of the largest extent of a level-2 or level-3 object, metres (household size; drawn log-uniformly)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class ShapeFamily:
@@ -43,12 +51,15 @@ class ShapeFamily:
 
   Attributes:
     name: short name shown in previews and docs, e.g. ``'mug'``.
-    draw: draws the family's parameters from a generator (must consume the generator deterministically).
+    draw: draws the family's parameters from a generator (must consume the generator deterministically); may
+      return ``'extent'``, the object's largest extent in metres (see the module docstring).
     build: turns the parameters into a closed `manifold3d.Manifold` in model units (largest extent ~1).
+    material: what the family's objects are made of: the density range the generator draws from.
   """
   name: str
   draw: Callable[[np.random.Generator], Params]
   build: Callable[[Params], Manifold]
+  material: Material
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -58,6 +69,11 @@ class ShapeFamily:
 def log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
   """Draws a float whose logarithm is uniform on [log(low), log(high)] (for aspect ratios)."""
   return float(np.exp(rng.uniform(np.log(low), np.log(high))))
+
+
+def draw_extent(rng: np.random.Generator, low: float = SIZE_RANGE[0], high: float = SIZE_RANGE[1]) -> float:
+  """Draws a largest extent, metres, log-uniformly in [low, high] (within `SIZE_RANGE` by default)."""
+  return log_uniform(rng, low, high)
 
 
 def rotation_from_uniform(uniform: np.ndarray) -> np.ndarray:
@@ -173,87 +189,3 @@ def largest_piece(solid: Manifold) -> Manifold:
   if len(pieces) <= 1:
     return solid
   return max(pieces, key=lambda piece: piece.volume())
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Level 1: prismatic and circular solids.
-
-
-def _draw_box(rng: np.random.Generator) -> Params:
-  return {'size': np.r_[1.0, rng.uniform(0.2, 1.0, 2)][rng.permutation(3)]}
-
-
-def _build_box(p: Params) -> Manifold:
-  return box(p['size'])
-
-
-def _draw_rounded_box(rng: np.random.Generator) -> Params:
-  size = np.r_[1.0, rng.uniform(0.25, 1.0, 2)][rng.permutation(3)]
-  return {'size': size, 'radius': float(rng.uniform(0.08, 0.45) * size.min())}
-
-
-def _build_rounded_box(p: Params) -> Manifold:
-  return rounded_box(p['size'], p['radius'])
-
-
-def _draw_cylinder(rng: np.random.Generator) -> Params:
-  return {'height_over_diameter': log_uniform(rng, 0.4, 3.0)}
-
-
-def _build_cylinder(p: Params) -> Manifold:
-  return cylinder(0.5, p['height_over_diameter'])
-
-
-def _draw_disc(rng: np.random.Generator) -> Params:
-  return {'height_over_diameter': log_uniform(rng, 0.08, 0.35)}
-
-
-def _draw_prism(rng: np.random.Generator) -> Params:
-  return {'sides': int(rng.integers(3, 9)), 'height_over_diameter': log_uniform(rng, 0.2, 3.0),
-          'irregularity': rng.uniform(-0.15, 0.15, 8)}
-
-
-def _build_prism(p: Params) -> Manifold:
-  sides = p['sides']
-  angles = 2 * np.pi * (np.arange(sides) + p['irregularity'][:sides]) / sides
-  return extrude(polygon(0.5 * np.c_[np.cos(angles), np.sin(angles)]), p['height_over_diameter'])
-
-
-def _draw_frustum(rng: np.random.Generator) -> Params:
-  return {'top_over_bottom': float(rng.uniform(0.1, 0.85)), 'height_over_diameter': log_uniform(rng, 0.3, 2.0)}
-
-
-def _build_frustum(p: Params) -> Manifold:
-  return cylinder(0.5, p['height_over_diameter'], radius_top=0.5 * p['top_over_bottom'])
-
-
-def _draw_ellipsoid(rng: np.random.Generator) -> Params:
-  axes = np.r_[0.5, 0.5 * rng.uniform(0.3, 1.0, 2)]
-  if rng.random() < 0.2:  # A sphere.
-    axes[:] = 0.5
-  return {'semi_axes': axes[rng.permutation(3)]}
-
-
-def _build_ellipsoid(p: Params) -> Manifold:
-  return ellipsoid(p['semi_axes'])
-
-
-def _draw_capsule(rng: np.random.Generator) -> Params:
-  return {'length_over_diameter': log_uniform(rng, 1.3, 5.0)}
-
-
-def _build_capsule(p: Params) -> Manifold:
-  return capsule(0.5, p['length_over_diameter'])
-
-
-LEVEL1_FAMILIES: tuple[ShapeFamily, ...] = (
-    ShapeFamily('box', _draw_box, _build_box),
-    ShapeFamily('cylinder', _draw_cylinder, _build_cylinder),
-    ShapeFamily('prism', _draw_prism, _build_prism),
-    ShapeFamily('ellipsoid', _draw_ellipsoid, _build_ellipsoid),
-    ShapeFamily('disc', _draw_disc, _build_cylinder),
-    ShapeFamily('capsule', _draw_capsule, _build_capsule),
-    ShapeFamily('frustum', _draw_frustum, _build_frustum),
-    ShapeFamily('rounded_box', _draw_rounded_box, _build_rounded_box),
-)
-"""Level 1 (prismatic and circular solids), all convex."""

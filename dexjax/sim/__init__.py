@@ -1,13 +1,14 @@
 """Heaps: the Dex-Net 4.0 heap state distribution, MuJoCo scene building and physics settling.
 
 `sample_heap_state` draws a heap's initial state (pure JAX, `vmap` over keys); `heap_object` turns a mesh and
-its convex pieces into a rigid body; `settle` drops and settles batches of heaps with the MuJoCo C engine
-(``backend='rollout'``) or MJX (``backend='mjx'``), flagging objects that leave the bin or never come to rest.
+its convex pieces into a rigid body (with the object's own density when it has one, as procedural objects do);
+`settle` drops and settles batches of heaps with the MuJoCo C engine (``backend='rollout'``) or MJX
+(``backend='mjx'``), flagging objects that leave the bin or never come to rest.
 See ``docs/heaps.md``.
 """
 
 from dexjax.sim.bodies import (DEFAULT_DENSITY, DEFAULT_MASS_RANGE, HeapObject, heap_object, heap_objects,
-                               validate_hull)
+                               mass_solid, object_density, validate_hull)
 from dexjax.sim.heap import (MAX_OBJECTS, Bin, HeapDistribution, HeapState, sample_friction, sample_heap_state,
                              sample_heap_states, sample_object_count, sample_uniform_quaternion, select_heap,
                              truncated_poisson_pmf)
@@ -17,7 +18,8 @@ from dexjax.sim.settling import (BACKENDS, SettleResult, SettleTimeout, default_
                                settle)
 
 __all__ = [
-    "DEFAULT_DENSITY", "DEFAULT_MASS_RANGE", "HeapObject", "heap_object", "heap_objects", "validate_hull",
+    "DEFAULT_DENSITY", "DEFAULT_MASS_RANGE", "HeapObject", "heap_object", "heap_objects", "mass_solid",
+    "object_density", "validate_hull",
     "MAX_OBJECTS", "Bin", "HeapDistribution", "HeapState", "sample_friction", "sample_heap_state",
     "sample_heap_states", "select_heap", "sample_object_count", "sample_uniform_quaternion",
     "truncated_poisson_pmf",

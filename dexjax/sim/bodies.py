@@ -5,10 +5,15 @@ Collision geometry is a tuple of convex hulls (vertex arrays in the object frame
 MuJoCo takes the convex hull of each vertex array, so only vertices are needed.
 
 Mass properties come from the full mesh, not the hulls: overlapping hulls of a decomposition would
-double-count volume. Mass rule (`heap_object`): uniform density 500 kg/m^3 (a solid between softwood and
-water; a typical Dex-Net-scale object of 5-10 cm then weighs 0.05-0.5 kg, around the reward model's mean of
-0.25 kg), clipped to [0.01, 2] kg so that tiny or huge meshes still give a stable simulation; when the mass is
-clipped the inertia is scaled by the same factor (same shape, different density).
+double-count volume. Mass rule (`heap_object`), always with a uniform density for the inertia:
+
+* an object that carries its own density, ``mesh.metadata['density']`` (kg/m^3; every procedural object does:
+  drawn from its family's material, see ``docs/objects.md``): mass = that density x volume, not clipped (the
+  generator keeps procedural masses within [0.01, 0.6] kg);
+* any other object (built-ins, your meshes): density `DEFAULT_DENSITY` = 500 kg/m^3, a guess (a solid between
+  softwood and water; a 5-10 cm object then weighs 0.05-0.5 kg, around the reward model's mean of 0.25 kg),
+  with the mass clipped to `DEFAULT_MASS_RANGE` = [0.01, 2] kg so that tiny or huge meshes still give a stable
+  simulation; when the mass is clipped the inertia is scaled by the same factor (same shape, other density).
 """
 
 from __future__ import annotations
@@ -21,10 +26,12 @@ from typing import Protocol
 import numpy as np
 import trimesh
 
-#: Default density of heap objects, kg/m^3.
+#: Density of heap objects that carry none of their own, kg/m^3 (a guess: see the module docstring).
 DEFAULT_DENSITY = 500.0
-#: Default (low, high) clip of an object's mass, kg.
+#: (low, high) clip of the mass of objects that carry no density of their own, kg.
 DEFAULT_MASS_RANGE = (0.01, 2.0)
+#: Key of ``trimesh.Trimesh.metadata`` holding an object's own density, kg/m^3 (set by procedural objects).
+DENSITY_KEY = 'density'
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -98,9 +105,21 @@ def validate_hull(vertices: np.ndarray, where: str = 'hull') -> np.ndarray:
   return v
 
 
+def object_density(mesh: trimesh.Trimesh) -> float | None:
+  """The object's own density, kg/m^3 (``mesh.metadata['density']``, set by procedural objects), or None."""
+  density = mesh.metadata.get(DENSITY_KEY) if isinstance(mesh.metadata, dict) else None
+  return None if density is None else float(density)
+
+
+def mass_solid(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+  """The solid whose volume and inertia `heap_object` uses: the mesh when it is watertight with positive volume,
+  else its convex hull."""
+  return mesh if mesh.is_watertight and mesh.volume > 0 else mesh.convex_hull
+
+
 def heap_object(mesh: trimesh.Trimesh, hulls: tuple[np.ndarray, ...] | list[np.ndarray] | None = None, *,
-                density: float = DEFAULT_DENSITY,
-                mass_range: tuple[float, float] = DEFAULT_MASS_RANGE,
+                density: float | None = None,
+                mass_range: tuple[float, float] | None = None,
                 name: str | None = None) -> HeapObject:
   """Builds a `HeapObject` from a mesh (for mass properties) and its convex pieces (for collisions).
 
@@ -109,26 +128,32 @@ def heap_object(mesh: trimesh.Trimesh, hulls: tuple[np.ndarray, ...] | list[np.n
       and its convex hull otherwise.
     hulls: convex pieces, each (V_i, 3) vertices in the same frame (e.g. ``collision_hulls(mesh)``); default:
       the mesh's convex hull as a single piece.
-    density: kg/m^3 (default 500).
-    mass_range: (low, high) clip of the resulting mass, kg; the inertia is scaled with the mass.
+    density: kg/m^3; default: the object's own (`object_density`: every procedural object has one), else
+      `DEFAULT_DENSITY` (500, a guess).
+    mass_range: (low, high) clip of the resulting mass, kg; the inertia is scaled with the mass. Default: no
+      clip for an object with its own density, `DEFAULT_MASS_RANGE` ([0.01, 2]) otherwise.
     name: label; default ``mesh.metadata['name']`` or ``'object'``.
 
   Raises:
     ValueError: a bad density or mass range, a mesh without volume, or a bad hull (see `validate_hull`).
   """
   name = name if name is not None else str(mesh.metadata.get('name', 'object'))
+  own = object_density(mesh)
+  if density is None:
+    density = DEFAULT_DENSITY if own is None else own
+  if mass_range is None and own is None:
+    mass_range = DEFAULT_MASS_RANGE
   if not (np.isfinite(density) and density > 0):
     raise ValueError(f'heap_object({name!r}): density: expected a finite number > 0 (kg/m^3), got {density!r}')
-  low, high = mass_range
-  if not (0 < low <= high and np.isfinite(high)):
+  if mass_range is not None and not (0 < mass_range[0] <= mass_range[1] and np.isfinite(mass_range[1])):
     raise ValueError(f'heap_object({name!r}): mass_range: expected 0 < low <= high (kg), got {mass_range!r}')
-  solid = mesh if mesh.is_watertight and mesh.volume > 0 else mesh.convex_hull
+  solid = mass_solid(mesh)
   volume = float(solid.volume)
   if not (np.isfinite(volume) and volume > 0):
     raise ValueError(f'heap_object({name!r}): mesh: expected a closed surface with positive volume, got volume '
                      f'{volume!r} m^3')
   mass = density * volume
-  clipped = float(np.clip(mass, low, high))
+  clipped = float(mass if mass_range is None else np.clip(mass, *mass_range))
   unit_inertia = np.asarray(solid.moment_inertia, np.float64) / float(getattr(solid, 'density', 1.0) or 1.0)
   inertia = unit_inertia * density * (clipped / mass)
   if hulls is None:
@@ -144,13 +169,14 @@ class _WithHulls(Protocol):
   hulls: tuple[np.ndarray, ...]
 
 
-def heap_objects(prepared: Iterable[_WithHulls], *, density: float = DEFAULT_DENSITY,
-                 mass_range: tuple[float, float] = DEFAULT_MASS_RANGE) -> list[HeapObject]:
+def heap_objects(prepared: Iterable[_WithHulls], *, density: float | None = None,
+                 mass_range: tuple[float, float] | None = None) -> list[HeapObject]:
   """`heap_object` for each prepared object (e.g. from `dexjax.objects.prepare_object_set`), in order.
 
   Args:
     prepared: objects with ``name``, ``mesh`` (metres) and ``hulls`` (convex pieces).
-    density, mass_range: see `heap_object`.
+    density, mass_range: see `heap_object` (defaults: each object's own density, unclipped, when it has one,
+      e.g. procedural objects; 500 kg/m^3 clipped to [0.01, 2] kg otherwise).
 
   Returns:
     One `HeapObject` per item; ``HeapState.object_ids`` index into this list.

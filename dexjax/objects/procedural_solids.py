@@ -1,0 +1,185 @@
+"""Level-1 procedural families: household boxes and cylinders (Dex-Net 4.0 difficulty level 1).
+
+The seed's level 1 holds "prismatic and circular solids" that every policy picks more than 80 % of the time,
+the parallel-jaw-only ones included. These families draw household-sized solids with *absolute* dimensions:
+each ``draw`` picks the object's largest extent in `LEVEL1_EXTENT_RANGE` (0.06-0.14 m, log-uniform) and its
+other dimensions in metres, at least `LEVEL1_MIN_THICKNESS` (0.03 m, 1.5 x the seed's 20 mm suction cup), and
+returns them as ``'extent'`` plus model-unit parameters (lengths / extent, so the built shape's largest
+bounding-box side is 1). With probability `LEVEL1_JAW_FRACTION` (0.8) an object's width, the dimension across
+it as it lies, is at most `LEVEL1_JAW_WIDTH` (0.045 m: the seed's 5 cm jaw opening less 5 mm), so that the jaws
+as well as the cup can pick it (a bar, a tall can); the others may be as wide as they are long (a flat box, a
+tuna can: the cup's). Balls are at least 6 cm across, wider than the jaws open. Every shape is convex:
+
+* ``box``: a box (packaged goods: cracker, sugar, gelatin boxes);
+* ``cylinder``: a cylinder, tall (soup, coffee cans, jars) or squat (a tuna can);
+* ``rounded_box``: a box with rounded edges (soap bars, erasers, sponges);
+* ``prism``: an irregular convex n-gonal prism, n = 3-8 (toy blocks);
+* ``frustum``: a truncated cone (tubs, cups, cone toys);
+* ``ball``: a sphere or an ellipsoid with axis ratios >= 0.75 (sports and toy balls).
+
+Each family's `Material` (density range and source) is in `procedural_materials`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dexjax.objects.procedural_materials import BALLS
+from dexjax.objects.procedural_materials import BLOCKS
+from dexjax.objects.procedural_materials import BOXED_GOODS
+from dexjax.objects.procedural_materials import CANNED_GOODS
+from dexjax.objects.procedural_materials import HOUSEHOLD_SOLIDS
+from dexjax.objects.procedural_shapes import Manifold
+from dexjax.objects.procedural_shapes import Params
+from dexjax.objects.procedural_shapes import ShapeFamily
+from dexjax.objects.procedural_shapes import box
+from dexjax.objects.procedural_shapes import cylinder
+from dexjax.objects.procedural_shapes import ellipsoid
+from dexjax.objects.procedural_shapes import extrude
+from dexjax.objects.procedural_shapes import log_uniform
+from dexjax.objects.procedural_shapes import polygon
+from dexjax.objects.procedural_shapes import rounded_box
+
+__all__ = ['LEVEL1_EXTENT_RANGE', 'LEVEL1_MIN_THICKNESS', 'LEVEL1_JAW_WIDTH', 'LEVEL1_JAW_FRACTION',
+           'LEVEL1_FAMILIES', 'prism_outline']
+
+LEVEL1_EXTENT_RANGE: tuple[float, float] = (0.06, 0.14)
+"""Range of a level-1 object's largest extent, metres (drawn log-uniformly)."""
+
+LEVEL1_MIN_THICKNESS: float = 0.03
+"""Smallest extent of a level-1 object, metres: 1.5 x the seed's 20 mm suction cup, above the jaws' 2 cm reach."""
+
+LEVEL1_JAW_WIDTH: float = 0.045
+"""Widest dimension across a jaw-friendly level-1 object, metres (the seed's 5 cm jaw opening less 5 mm)."""
+
+LEVEL1_JAW_FRACTION: float = 0.8
+"""Share of the level-1 boxes, cylinders, prisms and frusta drawn jaw-friendly (width <= `LEVEL1_JAW_WIDTH`)."""
+
+_MIN_BALL_RATIO = 0.75  # Smallest / largest semi-axis of a ball.
+_SPHERE_FRACTION = 0.2  # Share of exact spheres among the balls.
+
+
+def _largest(rng: np.random.Generator) -> float:
+  """A level-1 largest extent, metres."""
+  return log_uniform(rng, *LEVEL1_EXTENT_RANGE)
+
+
+def _side(rng: np.random.Generator, largest: float, smallest: float = LEVEL1_MIN_THICKNESS) -> float:
+  """A dimension uniform in [smallest, largest], metres."""
+  return float(rng.uniform(smallest, largest))
+
+
+def _extent_and_width(rng: np.random.Generator) -> tuple[float, float, bool]:
+  """(largest extent, width, jaw-friendly), metres: the width (the second-largest dimension) is at most
+  `LEVEL1_JAW_WIDTH` with probability `LEVEL1_JAW_FRACTION`, else uniform up to the extent."""
+  extent, jaws = _largest(rng), bool(rng.random() < LEVEL1_JAW_FRACTION)
+  return extent, _side(rng, LEVEL1_JAW_WIDTH if jaws else extent), jaws
+
+
+def _draw_box(rng: np.random.Generator) -> Params:
+  extent, width, _ = _extent_and_width(rng)
+  sides = np.r_[extent, width, _side(rng, width)][rng.permutation(3)]  # Lying on its largest face: width across.
+  return {'extent': extent, 'size': sides / extent}
+
+
+def _build_box(p: Params) -> Manifold:
+  return box(p['size'])
+
+
+def _draw_rounded_box(rng: np.random.Generator) -> Params:
+  params = _draw_box(rng)
+  params['radius'] = float(rng.uniform(0.1, 0.45) * params['size'].min())
+  return params
+
+
+def _build_rounded_box(p: Params) -> Manifold:
+  return rounded_box(p['size'], p['radius'])
+
+
+def _round_solid(rng: np.random.Generator) -> Params:
+  """Extent, diameter and height (model units) of a round solid: tall (height = extent; always when
+  jaw-friendly, so the diameter is the width) or squat (diameter = extent, e.g. a tuna can)."""
+  extent, width, jaws = _extent_and_width(rng)
+  tall = jaws or bool(rng.random() < 0.5)
+  return {'extent': extent, 'diameter': width / extent if tall else 1.0, 'height': 1.0 if tall else width / extent}
+
+
+def _draw_cylinder(rng: np.random.Generator) -> Params:
+  return _round_solid(rng)
+
+
+def _build_cylinder(p: Params) -> Manifold:
+  return cylinder(0.5 * p['diameter'], p['height'])
+
+
+def _draw_frustum(rng: np.random.Generator) -> Params:
+  return {**_round_solid(rng), 'top_over_bottom': float(rng.uniform(0.1, 0.85))}
+
+
+def _build_frustum(p: Params) -> Manifold:
+  return cylinder(0.5 * p['diameter'], p['height'], radius_top=0.5 * p['diameter'] * p['top_over_bottom'])
+
+
+def prism_outline(sides: int, irregularity: np.ndarray) -> np.ndarray:
+  """(sides, 2) vertices of an irregular convex polygon whose bounding box's larger side is 1.
+
+  Args:
+    sides: number of vertices, >= 3.
+    irregularity: (>= sides,) angular jitter of each vertex on its circle, in pitches (|jitter| < 0.5 keeps
+      the order and convexity).
+  """
+  angles = 2 * np.pi * (np.arange(sides) + np.asarray(irregularity)[:sides]) / sides
+  points = np.c_[np.cos(angles), np.sin(angles)]
+  low, high = points.min(axis=0), points.max(axis=0)
+  return (points - 0.5 * (low + high)) / float(np.max(high - low))
+
+
+def _min_width(points: np.ndarray) -> float:
+  """Thinnest width of the convex polygon with (N, 2) vertices ``points`` in order (the smallest extent across
+  any edge's normal: where a convex polygon's minimum width lies)."""
+  edges = np.roll(points, -1, axis=0) - points
+  normals = np.c_[edges[:, 1], -edges[:, 0]] / np.linalg.norm(edges, axis=1, keepdims=True)
+  return float(np.min(np.ptp(points @ normals.T, axis=0)))
+
+
+def _draw_prism(rng: np.random.Generator) -> Params:
+  sides, irregularity = int(rng.integers(3, 9)), rng.uniform(-0.15, 0.15, 8)
+  ratio = _min_width(prism_outline(sides, irregularity))  # The polygon's thinnest width / its box's larger side.
+  extent, width, jaws = _extent_and_width(rng)
+  narrowest = LEVEL1_MIN_THICKNESS / ratio  # The polygon must be >= the minimum thickness across.
+  if jaws:  # A tall prism whose polygon fits the jaws: ``width`` rescaled from [0.03, 0.045] to [narrowest, 0.045].
+    share = (width - LEVEL1_MIN_THICKNESS) / (LEVEL1_JAW_WIDTH - LEVEL1_MIN_THICKNESS)
+    width, height = min(narrowest + share * max(0.0, LEVEL1_JAW_WIDTH - narrowest), extent), extent
+  elif rng.random() < 0.5:  # The polygon spans the extent; the height is the other dimension.
+    width, height = extent, width
+  else:  # A tall prism with a wide polygon.
+    width, height = _side(rng, extent, min(extent, narrowest)), extent
+  return {'extent': extent, 'sides': sides, 'irregularity': irregularity, 'width': width / extent,
+          'height': height / extent}
+
+
+def _build_prism(p: Params) -> Manifold:
+  return extrude(polygon(p['width'] * prism_outline(p['sides'], p['irregularity'])), p['height'])
+
+
+def _draw_ball(rng: np.random.Generator) -> Params:
+  extent = _largest(rng)
+  axes = np.r_[0.5, 0.5 * rng.uniform(_MIN_BALL_RATIO, 1.0, 2)]
+  if rng.random() < _SPHERE_FRACTION:
+    axes[:] = 0.5
+  return {'extent': extent, 'semi_axes': axes[rng.permutation(3)]}
+
+
+def _build_ball(p: Params) -> Manifold:
+  return ellipsoid(p['semi_axes'])
+
+
+LEVEL1_FAMILIES: tuple[ShapeFamily, ...] = (
+    ShapeFamily('box', _draw_box, _build_box, BOXED_GOODS),
+    ShapeFamily('cylinder', _draw_cylinder, _build_cylinder, CANNED_GOODS),
+    ShapeFamily('rounded_box', _draw_rounded_box, _build_rounded_box, HOUSEHOLD_SOLIDS),
+    ShapeFamily('prism', _draw_prism, _build_prism, BLOCKS),
+    ShapeFamily('frustum', _draw_frustum, _build_frustum, HOUSEHOLD_SOLIDS),
+    ShapeFamily('ball', _draw_ball, _build_ball, BALLS),
+)
+"""Level 1 (household boxes and cylinders), all convex, at least `LEVEL1_MIN_THICKNESS` thick."""
