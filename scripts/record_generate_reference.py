@@ -1,5 +1,6 @@
 """Records the label rows of tests/test_generate.py's small run, made by the dexjax this imports, as the reference
-that `test_labels_match_the_rows_recorded_before_the_throughput_work` compares every later version with.
+that `test_labels_match_the_recorded_rows` compares every later version with (re-record it, and say why in the
+test, only when what a run makes is meant to change).
 
   # in a checkout of the reference commit (e.g. git worktree add ../ref 07484d8), with the tests of this one:
   PYTHONPATH=../ref python scripts/record_generate_reference.py tests/data/generate_small_rows_<commit>.npz --repo ../ref
