@@ -17,10 +17,10 @@ from dexjax.bench.protocol import STOP_REASONS, Protocol, stop_reason
 from dexjax.bench.runner import BenchmarkSpec, benchmark_config, run_benchmark, summarize_run
 from dexjax.bench.tool_path import PHASES, PathSettings, ToolPath, move_fraction, tool_path
 from dexjax.bench.trial import NO_GRASP, Planner, run_trial, trial_key
-from dexjax.bench.world import BinState, PickingWorld, object_level
+from dexjax.bench.world import BENCHMARK_HULLS, BinState, PickingWorld, object_level
 
 __all__ = [
-    'BinState', 'NO_GRASP', 'PickingWorld', 'Planner', 'Protocol', 'STOP_REASONS', 'object_level', 'run_trial',
+    'BENCHMARK_HULLS', 'BinState', 'NO_GRASP', 'PickingWorld', 'Planner', 'Protocol', 'STOP_REASONS', 'object_level', 'run_trial',
     'stop_reason', 'trial_key',
     'Judge', 'Verdict', 'analytic_judge', 'analytic_verdict', 'physics_judge', 'world_grasp',
     'PHYSICS_FAILURES', 'PhysicsOutcome', 'PhysicsSettings', 'execute_grasp', 'receptacle_centre',

@@ -11,12 +11,17 @@ The seed's success: the robot "lifts and transports exactly one object from the 
    the pick's path (`dexjax.bench.tool_path`): from a pre-grasp pose ``standoff`` behind the grasp along the
    approach, to the grasp, grip, lift, transport to above the receptacle at the robot model's speed and
    acceleration, release, let fall. The approach is force-guarded, as a real cell's: it stops where the contact
-   force pushing the gripper back first exceeds ``guard_force`` (a suction approach may go on ``press_depth``
-   past the planned point, to press the compliant cup onto the surface). A gripper pressing on the bin harder than
-   ``bin_force_limit`` during the approach or the grip fails the attempt (``collision_bin``: a robot would stop).
+   force pushing the gripper back first exceeds ``guard_force`` (the grip's own contact forces, a tapered object
+   pushing the closing jaws up, do not move the tool; a suction approach may go on ``press_depth``
+   past the planned point, to press the compliant cup onto the surface). The bin is an obstacle like the objects
+   (optionally, ``bin_force_limit`` fails an attempt whose gripper presses on it harder: ``collision_bin``).
 
-* **Parallel jaw**: the pads close with force-limited servos (the gripper's ``force_limit``); friction is the
-  object's Coulomb coefficient with the soft-finger torsional friction (2/3) mu r_f (condim 4).
+* **The gripper's solids** are the labels' (`dexjax.quality.gripper_geometry`), shrunk by the labels' collision
+  tolerance on every face not meant to touch: the labels let them overlap an object or the bin by up to the
+  tolerance, and so does the simulation (a palm 0.5 mm over a wall's top would otherwise stop the approach).
+* **Parallel jaw**: the pads close with force-limited servos (the gripper's ``force_limit``) and open together at
+  the release; friction is the object's Coulomb coefficient with the soft-finger torsional friction
+  (2/3) mu r_f (condim 4).
 * **Suction**: MuJoCo cannot model the compliant lip, so the seal is the analytic one (`dexjax.contacts.
   suction_seal`, Dex-Net 3.0's spring model) at the actual contact: where the cup's axis meets the first object
   (a ray from inside the cup; the mouth may have pressed up to the bellows' height into it, or stopped up to the
@@ -62,8 +67,8 @@ gripper enters or presses on the bin; nothing between the closed jaws (or under 
 failed at the actual contact; a suction-ring limit broke the hold; the object was lost before it reached the
 receptacle; more than one object reached the receptacle."""
 
-_GRIP, _LIFT, _TRANSPORT, _SHAKE, _RELEASE = (PHASES.index(p) for p in ('grip', 'lift', 'transport', 'shake',
-                                                                          'release'))
+_APPROACH, _GRIP, _LIFT, _TRANSPORT, _SHAKE, _RELEASE = (
+    PHASES.index(p) for p in ('approach', 'grip', 'lift', 'transport', 'shake', 'release'))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,7 +143,8 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
                             detail={'phase': 'approach', 'sim_seconds': 0.0, 'lifted': [], 'delivered': []})
   geometry = reward.quality.geometry
   pose = np.asarray(suction_pose(grasp) if isinstance(grasp, SuctionGrasp) else parallel_jaw_pose(grasp), np.float64)
-  sim = GraspScene(objects, heap, poses, pose, grasp, gripper, settings, geometry, receptacle_centre(settings), bin_)
+  sim = GraspScene(objects, heap, poses, pose, grasp, gripper, settings, geometry, receptacle_centre(settings), bin_,
+                   reward.quality.collision_tolerance)
   approach, origin = pose[:3, 0], pose[:3, 3]
   start = _start(sim, origin, approach)
   target = origin + (settings.press_depth * approach if sim.suction else 0.0)
@@ -152,7 +158,7 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
   reason = None
   for i in range(len(path.positions)):
     phase = int(path.phase[i])
-    if guarded is None and phase <= _GRIP and sim.pushback(approach) > settings.guard_force:
+    if guarded is None and phase == _APPROACH and sim.pushback(approach) > settings.guard_force:
       # The approach stops where the tool is, backed off by ``guard_retract`` (the force sensor's reaction); the
       # rest of the path starts there.
       guarded = d.xpos[sim.hand] - settings.guard_retract * approach
@@ -170,7 +176,7 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
     elif phase == _RELEASE and weld >= 0:  # vent the cup over the receptacle
       d.eq_active[weld], weld = 0, -1
     mujoco.mj_step(m, d)
-    if phase <= _GRIP and sim.bin_force() > settings.bin_force_limit:
+    if settings.bin_force_limit is not None and phase <= _GRIP and sim.bin_force() > settings.bin_force_limit:
       reason = 'collision_bin'
       break
     if weld >= 0 and phase >= _LIFT:

@@ -42,9 +42,11 @@ class PhysicsSettings:
     guard_force: the approach stops once contacts push the gripper back along the approach with this force, N.
     guard_retract: when the guard stops the approach, the tool backs off this much along it, m.
     press_depth: the suction approach may go on this far past the planned point, m.
-    bin_force_limit: contact force of the gripper on the bin (floor or walls) that fails the attempt, N (a
-      fingertip may touch the floor: the analytic reward allows 1 mm; a robot's collision detection stops it
-      at a few tens of newtons).
+    bin_force_limit: contact force of the gripper on the bin (floor or walls) during the approach and the grip
+      that fails the attempt, N; None (default): the labels' collision rule alone decides bin collisions, before
+      the attempt (`collision_check`), and in the simulation the bin is an obstacle like any other (a palm that
+      grazes a wall's top within the rule's 1 mm tolerance, with the hand held stiffly at its target, pressed on it
+      with over 50 N and failed attempts the labels accept).
     min_lift: an object counts as lifted when its centre of mass ends this much higher than it started, m.
     collision_check: before executing, test the gripper's swept solids against the simulated bodies with the
       labels' collision rule (`dexjax.bench.collision_rule`); a collision fails the attempt without simulating.
@@ -64,7 +66,7 @@ class PhysicsSettings:
   guard_force: float = 10.0
   guard_retract: float = 0.001
   press_depth: float = 0.005
-  bin_force_limit: float = 50.0
+  bin_force_limit: float | None = None
   min_lift: float = 0.1
   collision_check: bool = True
   receptacle_half: float = 0.12
@@ -79,7 +81,7 @@ class GraspScene:
 
   def __init__(self, objects: Sequence[HeapObject], heap: HeapState, poses: np.ndarray, pose: np.ndarray,
                grasp: ParallelJawGrasp | SuctionGrasp, gripper, settings: PhysicsSettings,
-               geometry: GripperGeometry, receptacle: np.ndarray, bin_: Bin = Bin()):
+               geometry: GripperGeometry, receptacle: np.ndarray, bin_: Bin = Bin(), clearance: float = 0.0):
     self.settings, self.suction = settings, isinstance(grasp, SuctionGrasp)
     self.contact_point, self.contact_offset = None, np.zeros(3)  # suction: the sealed contact (world, hand frame)
     # No sleeping objects here: the tool moves through mocap and weld constraints, and the judge's physics was
@@ -96,13 +98,13 @@ class GraspScene:
     hulls = [(f'obj{s}_hull{j}', max(float(friction[s]), mujoco.mjMINMU))
              for s in self.slots for j in range(len(objects[int(ids[s])].hulls))]
     if self.suction:
-      gb.add_suction_cup(spec, pose, gripper, geometry, settings.tool)
+      gb.add_suction_cup(spec, pose, gripper, geometry, settings.tool, clearance)
       gb.add_vacuum(spec, [f'obj{s}' for s in self.slots], settings.tool)
       tool_geoms = [gb.CUP, gb.SHAFT]
     else:
       self.stroke = 0.5 * float(grasp.width) + settings.tool.close_overtravel
-      gb.add_parallel_jaw(spec, pose, float(grasp.width), gripper, settings.tool)
-      tool_geoms = [gb.PALM, *gb.FINGERS]
+      gb.add_parallel_jaw(spec, pose, float(grasp.width), gripper, settings.tool, clearance)
+      tool_geoms = [gb.PALM, *gb.FINGERS, *gb.FINGERTIPS]
     gb.add_gripper_pairs(spec, tool_geoms, hulls, _BIN_GEOMS,
                          (2.0 / 3.0) * float(getattr(gripper, 'finger_radius', 0.0)), settings.tool)
     self.receptacle = np.asarray(receptacle, np.float64)
@@ -114,7 +116,9 @@ class GraspScene:
     self.hand = m.body(gb.HAND).id
     self.lip = m.body(gb.LIP).id if self.suction else -1
     self.tool_geoms = np.array([m.geom(g).id for g in tool_geoms])
-    self.finger_geoms = [m.geom(g).id for g in gb.FINGERS] if not self.suction else []
+    # Each jaw's geoms (pad, fingertip) in FINGERS order.
+    self.finger_geoms = ([[m.geom(p).id, m.geom(t).id] for p, t in zip(gb.FINGERS, gb.FINGERTIPS)]
+                         if not self.suction else [])
     self.bin_geoms = np.array([m.geom(g).id for g in _BIN_GEOMS])
     self.body_slot = np.full(m.nbody, -1)
     for s in self.slots:
@@ -151,7 +155,7 @@ class GraspScene:
     keep = (first | np.isin(g[:, 1], geoms_a)) & (dist < depth)
     if geoms_b is not None:
       keep &= np.isin(other, geoms_b)
-    force = np.where(adr >= 0, d.efc_force[np.maximum(adr, 0)], 0.0)
+    force = np.where(adr >= 0, d.efc_force[np.maximum(adr, 0)], 0.0) if d.nefc else np.zeros(n)
     return mine[keep], other[keep], force[keep]
 
   def pushback(self, approach: np.ndarray) -> float:
@@ -170,10 +174,10 @@ class GraspScene:
     return float(np.sum(self.contacts(self.tool_geoms, self.bin_geoms)[2]))
 
   def between_pads(self) -> set[int]:
-    """Slots touching both jaw pads."""
+    """Slots touching both jaws (pad or fingertip)."""
     touching = []
-    for pad in self.finger_geoms:
-      _, other, _ = self.contacts(np.array([pad]), depth=1e-4)
+    for jaw in self.finger_geoms:
+      _, other, _ = self.contacts(np.array(jaw), depth=1e-4)
       touching.append({int(self.geom_slot[o]) for o in other if self.geom_slot[o] >= 0})
     return touching[0] & touching[1]
 

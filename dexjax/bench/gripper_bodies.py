@@ -9,7 +9,8 @@ mouth):
 * **parallel jaw**: the palm and two finger pads (`ParallelJawGripper` sizes), each pad on a slide joint along
   the jaw axis, driven by a position servo whose force is clipped to the gripper's ``force_limit``; the jaws start
   open at the grasp's width and a command of 1 drives them ``close_overtravel`` past the centre, so a pad that
-  meets an object presses with exactly the force limit;
+  meets an object presses with exactly the force limit (both are opened at once to release it: see
+  `dexjax.bench.tool_path`);
 * **suction**: the rigid cup body (a cylinder of the cup's radius) behind the compliant bellows (``cone_height``,
   no collision solid: the seal model is the lip's physics) and the tool shaft behind it, on the hand; the
   bellows is a body ``lip`` at the cup's mouth hinged to the hand about the two axes across the cup, at half the
@@ -38,6 +39,8 @@ from dexjax.quality.gripper_geometry import GripperGeometry
 HAND, TARGET, VACUUM = 'hand', 'tool_target', 'vacuum'
 FINGERS = ('finger_pos', 'finger_neg')
 """Names of the jaw pads' bodies (and geoms): the pad on the +y (jaw axis) side and on the -y side."""
+FINGERTIPS = ('fingertip_pos', 'fingertip_neg')
+"""Names of the soft fingertips on the pads (spheres of the gripper's ``finger_radius`` on the closing line)."""
 PALM, CUP, SHAFT, LIP = 'palm', 'cup', 'shaft', 'lip'
 BELLOWS_JOINTS = ('bellows_y', 'bellows_z')
 """The lip's hinges: about the grasp frame's y and z axes (across the cup)."""
@@ -71,6 +74,10 @@ class ToolSettings:
       rubber's loss factor of about 0.1-0.2 alone gives 0.05-0.1; the air the bellows pumps adds to it).
     bellows_max_angle: the bellows' bending range, rad (about 30 degrees: the "angle compensation" bellows cups
       are sold for; an estimate).
+    fingertip_protrusion: how far the soft fingertip stands out of the pad's face, m (the seed's "custom silicone
+      fingertips"; the analytic model closes soft point contacts along one line, not flat pads: a rigid 2 x 6 cm
+      pad meets a tapered face at its edge and squeezes the object out where the point contacts hold it; an
+      estimate).
     lip_mass: mass of the lip body (cup, bellows and fitting), kg (weight compensated; an estimate: a 20 mm bellows
       cup weighs a few grams, its fitting more; lighter lips make the bellows' hinges numerically unstable at 2 ms).
   """
@@ -89,6 +96,7 @@ class ToolSettings:
   bellows_damping_ratio: float = 0.3
   bellows_max_angle: float = 0.5
   lip_mass: float = 0.02
+  fingertip_protrusion: float = 0.003
 
 
 def _box(body, name: str, centre: Sequence[float], half: Sequence[float], mass: float) -> None:
@@ -117,21 +125,35 @@ def _hand(spec: mujoco.MjSpec, pose: np.ndarray, tool: ToolSettings):
 
 
 def add_parallel_jaw(spec: mujoco.MjSpec, pose: np.ndarray, width: float, gripper: ParallelJawGripper,
-                     tool: ToolSettings = ToolSettings()) -> None:
+                     tool: ToolSettings = ToolSettings(), clearance: float = 0.0) -> None:
   """Adds the parallel-jaw hand at grasp-frame ``pose`` (4, 4; x approach, y jaw axis) with jaws open at
-  ``width`` (m) and one position actuator per pad (command: closing stroke in metres, 0 = open)."""
+  ``width`` (m) and one position actuator per pad (command: closing stroke in metres, 0 = open).
+
+  ``clearance`` (m, the labels' collision tolerance) shrinks every face of the solids that is not meant to touch
+  (all but the pads' inner faces) by that much: the labels let a solid overlap an object or the bin by up to the
+  tolerance, and so does the simulation.
+  """
   hand = _hand(spec, pose, tool)
-  length, thick, across = gripper.finger_length, gripper.finger_thickness, gripper.finger_width
+  c = float(clearance)
+  length, thick, across = gripper.finger_length, max(gripper.finger_thickness, 1e-3 + c), gripper.finger_width
   x_pad = gripper.tip_depth - 0.5 * length
   x_palm = gripper.tip_depth - length - 0.5 * gripper.palm_depth
-  _box(hand, PALM, [x_palm, 0.0, 0.0], [0.5 * gripper.palm_depth, 0.5 * gripper.palm_width,
-                                         0.5 * gripper.palm_height], tool.hand_mass)
+  _box(hand, PALM, [x_palm, 0.0, 0.0], [0.5 * gripper.palm_depth - c, 0.5 * gripper.palm_width - c,
+                                         0.5 * gripper.palm_height - c], tool.hand_mass)
   stroke = 0.5 * width + tool.close_overtravel
   for name, side in zip(FINGERS, (1.0, -1.0)):
-    pad = hand.add_body(name=name, pos=[x_pad, side * (0.5 * width + 0.5 * max(thick, 1e-3)), 0.0], gravcomp=1.0)
+    pad = hand.add_body(name=name, pos=[x_pad, side * (0.5 * width + 0.5 * thick), 0.0], gravcomp=1.0)
     pad.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0.0, -side, 0.0], range=[-0.001, stroke],
                   damping=tool.finger_damping)
-    _box(pad, name, [0.0, 0.0, 0.0], [0.5 * length, 0.5 * max(thick, 1e-3), 0.5 * across], tool.finger_mass)
+    # The inner (pad) face stays where the grasp puts it; the tip, the outer face and the sides give way by c.
+    _box(pad, name, [-0.5 * c, -side * 0.5 * c, 0.0], [0.5 * (length - c), 0.5 * (thick - c), 0.5 * across - c],
+         tool.finger_mass)
+    # The soft fingertip on the closing line (the grasp centre's depth), standing out of the pad by
+    # ``fingertip_protrusion``: the analytic model's soft point contact of radius finger_radius.
+    radius = max(float(gripper.finger_radius), 1e-3)
+    pad.add_geom(name=FINGERTIPS[FINGERS.index(name)], type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                 pos=[-x_pad, -side * (0.5 * thick - radius + tool.fingertip_protrusion), 0.0], size=[radius, 0, 0],
+                 mass=1e-3, contype=_GRIPPER_GROUP, conaffinity=0, rgba=[0.9, 0.4, 0.2, 1.0])
     spec.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT,
                       gaintype=mujoco.mjtGain.mjGAIN_FIXED, gainprm=[tool.finger_gain] + [0.0] * 9,
                       biastype=mujoco.mjtBias.mjBIAS_AFFINE, biasprm=[0.0, -tool.finger_gain, 0.0] + [0.0] * 7,
@@ -140,19 +162,21 @@ def add_parallel_jaw(spec: mujoco.MjSpec, pose: np.ndarray, width: float, grippe
 
 
 def add_suction_cup(spec: mujoco.MjSpec, pose: np.ndarray, gripper: SuctionGripper,
-                    geometry: GripperGeometry = GripperGeometry(), tool: ToolSettings = ToolSettings()) -> None:
+                    geometry: GripperGeometry = GripperGeometry(), tool: ToolSettings = ToolSettings(),
+                    clearance: float = 0.0) -> None:
   """Adds the suction tool at grasp-frame ``pose`` (4, 4; x approach, origin at the cup's mouth): the hand with
-  the rigid cup body and shaft, and the bellows' ``lip`` body at the mouth; see `add_vacuum` for its hold."""
+  the rigid cup body and shaft, and the bellows' ``lip`` body at the mouth; see `add_vacuum` for its hold.
+  ``clearance``: as `add_parallel_jaw` (the cup body's and the shaft's radii and front faces)."""
   hand = _hand(spec, pose, tool)
-  h, r = gripper.cone_height, gripper.cup_radius
+  h, r, c = gripper.cone_height, gripper.cup_radius, float(clearance)
   # The front ``cone_height`` of the cup is the compliant bellows: no collision solid (the seal model decides what
   # it does); the rigid cup body behind it and the shaft collide.
-  hand.add_geom(name=CUP, type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[-h - 0.5 * tool.cup_body_length, 0.0, 0.0],
-                quat=_Z_TO_X, size=[r, 0.5 * tool.cup_body_length, 0.0], mass=0.5 * tool.hand_mass,
+  hand.add_geom(name=CUP, type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[-h - 0.5 * (tool.cup_body_length + c), 0.0, 0.0],
+                quat=_Z_TO_X, size=[r - c, 0.5 * (tool.cup_body_length - c), 0.0], mass=0.5 * tool.hand_mass,
                 contype=_GRIPPER_GROUP, conaffinity=0)
   hand.add_geom(name=SHAFT, type=mujoco.mjtGeom.mjGEOM_CYLINDER,
                 pos=[-h - tool.cup_body_length - 0.5 * geometry.shaft_length, 0.0, 0.0], quat=_Z_TO_X,
-                size=[geometry.shaft_radius, 0.5 * geometry.shaft_length, 0.0], mass=0.5 * tool.hand_mass,
+                size=[geometry.shaft_radius - c, 0.5 * geometry.shaft_length, 0.0], mass=0.5 * tool.hand_mass,
                 contype=_GRIPPER_GROUP, conaffinity=0)
   # The lip body has no geom (a ray from the cup must only meet objects); its inertia is a thin ring's.
   ring = tool.lip_mass * r * r
@@ -181,7 +205,7 @@ def add_gripper_pairs(spec: mujoco.MjSpec, gripper_geoms: Sequence[str], object_
   """
   solref = [tool.contact_timeconst, 1.0]
   for g in gripper_geoms:
-    pad = g in FINGERS
+    pad = g in FINGERS or g in FINGERTIPS
     for name, mu in object_geoms:
       spec.add_pair(geomname1=g, geomname2=name, condim=4 if pad else 3, solref=solref,
                     friction=[mu, mu, finger_torsion * mu if pad else 0.0, 0.0, 0.0])
@@ -217,6 +241,6 @@ def add_receptacle(spec: mujoco.MjSpec, centre: Sequence[float], inner_half: flo
   return names
 
 
-__all__ = ['BELLOWS_JOINTS', 'CUP', 'FINGERS', 'HAND', 'LIP', 'PALM', 'RECEPTACLE', 'SHAFT', 'TARGET', 'ToolSettings',
+__all__ = ['BELLOWS_JOINTS', 'CUP', 'FINGERS', 'FINGERTIPS', 'HAND', 'LIP', 'PALM', 'RECEPTACLE', 'SHAFT', 'TARGET', 'ToolSettings',
            'VACUUM', 'add_gripper_pairs', 'add_parallel_jaw', 'add_receptacle', 'add_suction_cup', 'add_vacuum',
            'bellows_damping', 'rotation_quat']

@@ -26,6 +26,8 @@ from typing import Any
 from dexjax.bench.attempt_log import append_attempt, read_attempts
 from dexjax.bench.execution import PhysicsSettings
 from dexjax.bench.failure_memory import FailureMemory
+from dexjax.bench.world import BENCHMARK_HULLS
+from dexjax.objects.collision import HullSettings
 from dexjax.bench.judges import analytic_judge, physics_judge
 from dexjax.bench.picking_metrics import MotionModel, object_difficulty, summarize
 from dexjax.bench.protocol import Protocol
@@ -59,6 +61,7 @@ class BenchmarkSpec:
     physics: the physics judge's settings; its robot model (``physics.path.motion``) also times the attempts
       for picks per hour.
     memory: the policies' memory of failed grasps (`FailureMemory`; off by default, as the seed's protocol).
+    hulls: the objects' convex decomposition for the simulation (`dexjax.bench.BENCHMARK_HULLS`).
   """
 
   policies: tuple[str, ...]
@@ -71,6 +74,7 @@ class BenchmarkSpec:
   known_mass: bool = False
   physics: PhysicsSettings = PhysicsSettings()
   memory: FailureMemory = FailureMemory()
+  hulls: HullSettings = BENCHMARK_HULLS
 
   @property
   def motion(self) -> MotionModel:
@@ -101,7 +105,8 @@ class BenchmarkSpec:
     return {'policies': list(self.policies), 'objects': list(self.config.objects.sources),
             'protocol': dataclasses.asdict(self.protocol), 'judge': self.judge, 'model': model, 'cem': self.cem,
             'seed': self.seed, 'known_mass': self.known_mass, 'physics': plain_json(dataclasses.asdict(self.physics)),
-            'memory': dataclasses.asdict(self.memory), 'config_fingerprint': digest}
+            'memory': dataclasses.asdict(self.memory), 'hulls': dataclasses.asdict(self.hulls),
+            'config_fingerprint': digest}
 
 
 def benchmark_noise() -> Any:
@@ -137,7 +142,7 @@ def _worker_state(spec: BenchmarkSpec, cache_dir: str | None) -> dict[str, Any]:
     from dexjax.policy.composite import plan_grasp  # pylint: disable=g-import-not-at-top
     from dexjax.policy.presets import make_policy, uses_models  # pylint: disable=g-import-not-at-top
     release_worker()
-    world = PickingWorld(spec.config, cache_dir=cache_dir)
+    world = PickingWorld(spec.config, cache_dir=cache_dir, hulls=spec.hulls)
     models = load_models(spec.model) if any(uses_models(p) for p in spec.policies) else {}
     plan = jax.jit(plan_grasp)
     planners = {}
@@ -195,13 +200,17 @@ def _write_json(path: Path, data: Any) -> None:
 
 
 def check_objects(spec: BenchmarkSpec, cache_dir: str | os.PathLike[str] | None = None) -> list[str]:
-  """Prepares (and caches) the object set here, before any worker starts; returns the usable objects' names.
+  """Prepares (and caches) the object set and its collision hulls here, before any worker starts; returns the
+  usable objects' names.
 
   Raises:
     ValueError: a malformed source, no usable object, or more objects per trial than usable objects.
   """
   from dexjax.generate.pipeline import usable_objects  # pylint: disable=g-import-not-at-top
+  from dexjax.objects.collision import cached_collision_hulls  # pylint: disable=g-import-not-at-top
   prepared, rejected = usable_objects(spec.config, cache_dir)
+  for p in prepared:  # the simulation's decomposition, computed here once instead of in every worker
+    cached_collision_hulls(p.mesh, cache_dir=cache_dir, **spec.hulls.kwargs())
   if spec.protocol.objects_per_trial > len(prepared):
     skipped = f' ({len(rejected)} rejected: ' + '; '.join(f'{r.file}: {r.reason}' for r in rejected[:3]) + ')'
     raise ValueError(f'objects per trial (--per-trial): expected at most {len(prepared)}, the usable objects of '

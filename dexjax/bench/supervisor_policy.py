@@ -12,9 +12,11 @@ highest robust quality over both grippers' candidates:
    ``max_checked`` of highest set quality tested best first for collisions with the labels' rule;
 2. the ``num_scored`` best collision-free candidates of each gripper scored with the seed's reward in this bin
    (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the object's own friction) with the
-   supervisor's M = 25 draws instead of the labels' 10;
-3. the candidate of highest robust probability over both grippers (ties broken by the set's quality, then the
-   parallel jaw first), or no grasp.
+   supervisor's M = 25 draws instead of the labels' 10, twice: with the labels' Gamma masses and with the
+   objects' true masses (part of the state it knows);
+3. the candidate whose smaller robust probability of the two is highest, over both grippers (ties broken by the
+   true-mass probability, the set's quality, then the parallel jaw first), or no grasp: a grasp both the labels
+   and the object's real weight call robust.
 
 It is the benchmark's reference: if it cannot pick under the physics judge, the simulated world or the labels are
 wrong, not the learning. Its records and figures are marked privileged (``SupervisorPolicy.privileged``).
@@ -45,9 +47,10 @@ SUPERVISOR = 'supervisor'
 
 
 @functools.partial(jax.jit, static_argnames=('suction', 'num_scored'))
-def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, camera: Camera, mask: jax.Array,
-                depth: jax.Array, params: LabelParams, suction: bool, num_scored: int):
-  """(image grasp, robust probability, set quality, found) of one gripper's best grasp in the bin."""
+def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax.Array, camera: Camera,
+                mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int):
+  """(image grasp, score, set quality, found) of one gripper's best grasp in the bin: the score is the smaller of
+  its robust probabilities with the labels' Gamma masses and with the objects' true ``masses`` (P,) kg."""
   reward = params.reward.replace(num_samples=SUPERVISOR_SAMPLES)
   if suction:
     images, eligible = suction_supervisor_candidates(sets_pk, scene, params.bin, camera, mask, params.supervisor,
@@ -66,12 +69,14 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, camera: Cam
   top, idx = jax.lax.top_k(jnp.where(eligible, quality, -jnp.inf), num_scored)
   chosen = jax.tree.map(lambda a: a[idx], images)
   keys = jax.random.split(key, num_scored)
-  score = lambda k, g: heap_reward(k, to_world(camera, g), scene, params.bin, gripper, reward, pert)
-  records = jax.vmap(score)(keys, chosen)
-  ok = jnp.isfinite(top) & (records.reward == 1)
-  rank = jnp.where(ok, records.robust_probability + 1e-3 * top, -jnp.inf)
+  score = lambda k, g, s: heap_reward(k, to_world(camera, g), s, params.bin, gripper, reward, pert)
+  prior = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene)
+  known = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene.replace(mass=masses))
+  ok = jnp.isfinite(top) & (prior.reward == 1) & (known.reward == 1)
+  robust = jnp.minimum(prior.robust_probability, known.robust_probability)
+  rank = jnp.where(ok, robust + 1e-3 * known.robust_probability + 1e-6 * top, -jnp.inf)
   best = jnp.argmax(rank)
-  return (jax.tree.map(lambda a: a[best], chosen), records.robust_probability[best], top[best], ok[best])
+  return jax.tree.map(lambda a: a[best], chosen), robust[best], top[best], ok[best]
 
 
 @dataclasses.dataclass
@@ -90,15 +95,16 @@ class SupervisorPolicy:
   num_scored: int = 32
   privileged: bool = True
 
-  def __call__(self, key: jax.Array, observation: Observation, scene: HeapScene, camera: Camera,
-               segmentation: np.ndarray, slot_ids: np.ndarray) -> GraspAction:
-    """The best grasp in the bin, as the `GraspAction` of ``observation``'s image (``probability``: its robust
-    probability over M = 25 draws; ``valid`` False when no candidate is eligible).
+  def __call__(self, key: jax.Array, observation: Observation, scene: HeapScene, masses: np.ndarray,
+               camera: Camera, segmentation: np.ndarray, slot_ids: np.ndarray) -> GraspAction:
+    """The best grasp in the bin, as the `GraspAction` of ``observation``'s image (``probability``: its score, the
+    smaller robust probability over M = 25 draws; ``valid`` False when no candidate is eligible).
 
     Args:
       key: key of the reward's draws.
       observation: the policy's observation (its camera's intrinsics turn the grasp into an action).
       scene: the bin's true `HeapScene` (P slots).
+      masses: (P,) each slot's true mass, kg.
       camera: the camera of the image.
       segmentation: (H, W) int32 true segmentation (slot per pixel, negative for the bin or nothing).
       slot_ids: (P,) model index of each slot (`scene_slot_ids`).
@@ -107,8 +113,8 @@ class SupervisorPolicy:
     actions, ranks = [], []
     for suction, sets, k in zip((False, True), self.sets, jax.random.split(key)):
       sets_pk = heap_grasp_sets(sets, jnp.asarray(slot_ids, jnp.int32))
-      grasp, prob, quality, found = _best_grasp(k, sets_pk, scene, camera, mask, observation.depth, self.params,
-                                                suction, self.num_scored)
+      grasp, prob, quality, found = _best_grasp(k, sets_pk, scene, jnp.asarray(masses, jnp.float32), camera, mask,
+                                                observation.depth, self.params, suction, self.num_scored)
       actions.append(action_from_grasp(observation, grasp, prob, found))
       ranks.append(float(prob) + 1e-3 * float(quality) if bool(found) else -np.inf)
     return jax.device_get(actions[int(np.argmax(ranks))])
@@ -130,8 +136,9 @@ def supervisor_policy(world: Any, num_scored: int = 32, max_checked: int = 256) 
 
 def plan_privileged(policy: SupervisorPolicy, world: Any, key: jax.Array, observation: Observation, state: Any,
                     camera: Camera, segmentation: np.ndarray) -> GraspAction:
-  """`SupervisorPolicy` on a `BinState` of ``world``: its true scene, segmentation and slot ids."""
-  return policy(key, observation, world.scene(state), camera, segmentation,
+  """`SupervisorPolicy` on a `BinState` of ``world``: its true scene, masses, segmentation and slot ids."""
+  masses = np.array([world.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
+  return policy(key, observation, world.scene(state), masses, camera, segmentation,
                 scene_slot_ids(state.object_ids, state.mask))
 
 

@@ -140,7 +140,9 @@ def tool_path(pre_grasp: np.ndarray, grasp: np.ndarray, receptacle: np.ndarray, 
   add(_move(lifted, above, m.tool_speed, m.acceleration, timestep), 1.0, 'transport')
   if settings.shake_cycles:
     add(_shake(above, settings, timestep), 1.0, 'shake')
-  hold(above, settings.grip_seconds, lambda n: np.linspace(1.0, 0.0, n + 1)[1:], 'release')
+  # Release at once: both pads switch to opening together (a ramp lets the pad that met the object first let go
+  # first, while the other still pushes with its full force and flings the object).
+  hold(above, settings.grip_seconds, 0.0, 'release')
   hold(above, settings.fall_seconds, 0.0, 'fall')
   return ToolPath(positions=np.concatenate([p for p, _, _ in parts]), grip=np.concatenate([g for _, g, _ in parts]),
                   phase=np.concatenate([ph for _, _, ph in parts]))

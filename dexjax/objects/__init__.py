@@ -25,6 +25,7 @@ from dexjax.objects.procedural import procedural_spec
 from dexjax.objects.procedural import procedural_specs
 from dexjax.objects.procedural_materials import Material
 from dexjax.objects.collision import CONVEX_SOLIDITY
+from dexjax.objects.collision import HullSettings
 from dexjax.objects.collision import cached_collision_hulls
 from dexjax.objects.collision import collision_hulls
 from dexjax.objects.collision import hulls_cache_key
@@ -43,7 +44,7 @@ __all__ = [
     "MAX_EXTENT", "MAX_FACES", "MAX_MASS", "MIN_EXTENT", "MIN_MASS", "PROCEDURAL_LEVELS", "PROCEDURAL_PREFIX",
     "parse_procedural_spec", "procedural_families", "procedural_material", "procedural_mesh",
     "procedural_mesh_problems", "procedural_params", "procedural_spec", "procedural_specs", "Material",
-    "CONVEX_SOLIDITY", "cached_collision_hulls", "collision_hulls", "hulls_cache_key",
+    "CONVEX_SOLIDITY", "HullSettings", "cached_collision_hulls", "collision_hulls", "hulls_cache_key",
     "FolderReport", "LoadedObject", "PreparedObject", "Rejection", "load_mesh_folder", "prepare_object",
     "expand_object_sources", "load_object_set", "prepare_object_set",
     "save_contact_sheet", "ObjectMass", "object_masses", "mass_summary", "prior_summary",

@@ -21,6 +21,7 @@ disk by `cached_collision_hulls`, keyed by mesh content, parameters and the vhac
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.metadata
 import os
 import warnings
@@ -39,6 +40,28 @@ CONVEX_SOLIDITY: float = 0.97
 
 HULL_CACHE_SUBDIR: str = 'hulls'
 """Sub-directory of the object cache directory that holds cached collision hulls."""
+
+@dataclasses.dataclass(frozen=True)
+class HullSettings:
+  """The parameters of `collision_hulls` / `cached_collision_hulls` as one value (defaults: theirs; the datasets'
+  heaps use them). A finer decomposition follows cavities more closely at the cost of more geoms to collide.
+
+  Attributes:
+    max_hulls: maximum number of convex pieces.
+    max_vertices: maximum vertices per piece.
+    resolution: V-HACD voxel count.
+    convex_solidity: objects at least this solid skip the decomposition (their own hull).
+  """
+
+  max_hulls: int = 8
+  max_vertices: int = 64
+  resolution: int = 100_000
+  convex_solidity: float = CONVEX_SOLIDITY
+
+  def kwargs(self) -> dict:
+    """The settings as keyword arguments of `collision_hulls` / `cached_collision_hulls`."""
+    return dataclasses.asdict(self)
+
 
 # Hulls with less volume than this fraction of the mesh's hull volume (slivers) are dropped.
 _MIN_HULL_VOLUME_FRACTION = 1e-6
