@@ -118,7 +118,8 @@ def _start(sim: GraspScene, grasp_origin: np.ndarray, approach: np.ndarray) -> n
 def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], heap: HeapState, poses: np.ndarray,
                   grasp: ParallelJawGrasp | SuctionGrasp, gripper: ParallelJawGripper | SuctionGripper,
                   settings: PhysicsSettings = PhysicsSettings(), reward: RewardParams = RewardParams(),
-                  bin_: Bin = Bin(), scene: HeapScene | None = None) -> PhysicsOutcome:
+                  bin_: Bin = Bin(), scene: HeapScene | None = None,
+                  grip_hulls: Sequence[Sequence[np.ndarray]] | None = None) -> PhysicsOutcome:
   """Executes one world-frame grasp on a heap in MuJoCo (see the module doc).
 
   Args:
@@ -131,6 +132,7 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
     settings: judge settings; bin_: the bin.
     reward: the labels' reward settings: their collision tolerance and gripper collision geometry.
     scene: the heap's `HeapScene` for the collision test (built from ``models`` when None).
+    grip_hulls: per object, a finer convex decomposition the gripper meets near the grasp (`GraspScene`).
   """
   grasp = jax.tree.map(np.asarray, grasp)
   poses = np.asarray(poses, np.float64)
@@ -144,7 +146,7 @@ def execute_grasp(objects: Sequence[HeapObject], models: Sequence[ObjectModel], 
   geometry = reward.quality.geometry
   pose = np.asarray(suction_pose(grasp) if isinstance(grasp, SuctionGrasp) else parallel_jaw_pose(grasp), np.float64)
   sim = GraspScene(objects, heap, poses, pose, grasp, gripper, settings, geometry, receptacle_centre(settings), bin_,
-                   reward.quality.collision_tolerance)
+                   reward.quality.collision_tolerance, grip_hulls)
   approach, origin = pose[:3, 0], pose[:3, 3]
   start = _start(sim, origin, approach)
   target = origin + (settings.press_depth * approach if sim.suction else 0.0)

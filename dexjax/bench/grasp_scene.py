@@ -26,6 +26,8 @@ from dexjax.sim.heap import Bin, HeapState
 from dexjax.sim.scene import SettleSettings, compile_heap, heap_slots, heap_spec
 
 _BIN_GEOMS = ('ground', 'wall0', 'wall1', 'wall2', 'wall3')
+_SETTLED_GROUP, _GRIP_GROUP = 3, 4  # geom groups: the coarse hulls of objects near the grasp; their finer pieces
+_RAY_GROUPS = np.array([1, 1, 1, 0, 1, 1], np.uint8)  # the cup's ray meets everything but those coarse hulls
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,6 +55,8 @@ class PhysicsSettings:
       False: the gripper pushes whatever is in its way (a stress test, not the labels' world).
     receptacle_half: half the inner side of the square receptacle beside the bin, m.
     receptacle_wall: height of the receptacle's walls, m.
+    grip_radius: objects whose centre lies within this distance of the grasp (plus their own radius) meet the
+      gripper through their finer grip hulls, when the judge has them, m.
     path: the tool's motions (`PathSettings`).
     tool: the tool bodies' constants (`ToolSettings`).
   """
@@ -71,6 +75,7 @@ class PhysicsSettings:
   collision_check: bool = True
   receptacle_half: float = 0.12
   receptacle_wall: float = 0.08
+  grip_radius: float = 0.1
   path: PathSettings = PathSettings()
   tool: gb.ToolSettings = gb.ToolSettings()
 
@@ -81,7 +86,8 @@ class GraspScene:
 
   def __init__(self, objects: Sequence[HeapObject], heap: HeapState, poses: np.ndarray, pose: np.ndarray,
                grasp: ParallelJawGrasp | SuctionGrasp, gripper, settings: PhysicsSettings,
-               geometry: GripperGeometry, receptacle: np.ndarray, bin_: Bin = Bin(), clearance: float = 0.0):
+               geometry: GripperGeometry, receptacle: np.ndarray, bin_: Bin = Bin(), clearance: float = 0.0,
+               grip_hulls: Sequence[Sequence[np.ndarray]] | None = None):
     self.settings, self.suction = settings, isinstance(grasp, SuctionGrasp)
     self.contact_point, self.contact_offset = None, np.zeros(3)  # suction: the sealed contact (world, hand frame)
     # No sleeping objects here: the tool moves through mocap and weld constraints, and the judge's physics was
@@ -95,8 +101,7 @@ class GraspScene:
     self.slots = heap_slots(heap)
     friction = np.asarray(heap.friction, np.float64)
     ids = np.asarray(heap.object_ids)
-    hulls = [(f'obj{s}_hull{j}', max(float(friction[s]), mujoco.mjMINMU))
-             for s in self.slots for j in range(len(objects[int(ids[s])].hulls))]
+    hulls = self._gripper_hulls(spec, objects, ids, poses, pose[:3, 3], friction, grip_hulls)
     if self.suction:
       gb.add_suction_cup(spec, pose, gripper, geometry, settings.tool, clearance)
       gb.add_vacuum(spec, [f'obj{s}' for s in self.slots], settings.tool)
@@ -132,6 +137,30 @@ class GraspScene:
     self.quat = gb.rotation_quat(pose[:3, :3])
     mujoco.mj_forward(m, self.data)
     self.start_z = {s: float(self.data.xipos[m.body(f'obj{s}').id][2]) for s in self.slots}
+
+  def _gripper_hulls(self, spec, objects, ids, poses, centre, friction, grip_hulls) -> list[tuple[str, float]]:
+    """(geom name, friction) of the object geoms the gripper collides with. With ``grip_hulls`` (per object, a
+    finer convex decomposition), the objects within ``grip_radius`` of the grasp get those pieces as extra geoms
+    that only the gripper touches (and the cup's ray sees): the gripper meets the mesh's cavities, while the
+    objects keep colliding with each other through their own (coarser) hulls, as they settled."""
+    out = []
+    for s in self.slots:
+      obj, mu = objects[int(ids[s])], max(float(friction[s]), mujoco.mjMINMU)
+      near = (grip_hulls is not None and
+              np.linalg.norm(poses[s, :3] - centre) < self.settings.grip_radius + obj.radius)
+      if not near:
+        out += [(f'obj{s}_hull{j}', mu) for j in range(len(obj.hulls))]
+        continue
+      body = spec.body(f'obj{s}')
+      for j in range(len(obj.hulls)):
+        spec.geom(f'obj{s}_hull{j}').group = _SETTLED_GROUP
+      for j, hull in enumerate(grip_hulls[int(ids[s])]):
+        name = f'obj{s}_grip{j}'
+        spec.add_mesh(name=name, uservert=np.asarray(hull, np.float64).reshape(-1).tolist())
+        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, contype=0, conaffinity=0,
+                      group=_GRIP_GROUP, rgba=[0.5, 0.8, 0.5, 0.3])
+        out.append((name, mu))
+    return out
 
   def place_tool(self, position: np.ndarray) -> None:
     """Tool and target at ``position`` with the grasp's orientation, at rest."""
@@ -225,7 +254,7 @@ class GraspScene:
   def _ray(self, origin: np.ndarray, direction: np.ndarray) -> tuple[int, float]:
     """(slot, distance) of the first object a ray meets, or (-1, inf)."""
     geom = np.zeros(1, np.int32)
-    dist = mujoco.mj_ray(self.model, self.data, origin, direction, None, 1, self.hand, geom)
+    dist = mujoco.mj_ray(self.model, self.data, origin, direction, _RAY_GROUPS, 1, self.hand, geom)
     if dist < 0 or geom[0] < 0 or self.geom_slot[geom[0]] < 0:
       return -1, math.inf
     return int(self.geom_slot[geom[0]]), float(dist)

@@ -74,7 +74,7 @@ def physics_judge(world: PickingWorld, settings: PhysicsSettings = PhysicsSettin
     params = world.params
     gripper = params.suction if action.gripper_name == 'suction' else params.parallel_jaw
     out = execute_grasp(world.bodies, world.models, world.heap_state(state), state.poses, grasp, gripper, settings,
-                        params.reward, params.bin, world.scene(state))
+                        params.reward, params.bin, world.scene(state), world.grip_hulls)
     verdict = Verdict(success=out.success, target_slot=out.target_slot, reason=out.reason, detail=out.detail)
     moved = out.detail['sim_seconds'] > 0
     return verdict, (dataclasses.replace(state, poses=out.poses) if moved else None)

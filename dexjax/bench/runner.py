@@ -61,7 +61,8 @@ class BenchmarkSpec:
     physics: the physics judge's settings; its robot model (``physics.path.motion``) also times the attempts
       for picks per hour.
     memory: the policies' memory of failed grasps (`FailureMemory`; off by default, as the seed's protocol).
-    hulls: the objects' convex decomposition for the simulation (`dexjax.bench.BENCHMARK_HULLS`).
+    grip_decomposition: the objects' convex decomposition the physics judge's gripper meets near the grasp
+      (`dexjax.bench.BENCHMARK_HULLS`).
   """
 
   policies: tuple[str, ...]
@@ -74,7 +75,7 @@ class BenchmarkSpec:
   known_mass: bool = False
   physics: PhysicsSettings = PhysicsSettings()
   memory: FailureMemory = FailureMemory()
-  hulls: HullSettings = BENCHMARK_HULLS
+  grip_decomposition: HullSettings = BENCHMARK_HULLS
 
   @property
   def motion(self) -> MotionModel:
@@ -105,7 +106,7 @@ class BenchmarkSpec:
     return {'policies': list(self.policies), 'objects': list(self.config.objects.sources),
             'protocol': dataclasses.asdict(self.protocol), 'judge': self.judge, 'model': model, 'cem': self.cem,
             'seed': self.seed, 'known_mass': self.known_mass, 'physics': plain_json(dataclasses.asdict(self.physics)),
-            'memory': dataclasses.asdict(self.memory), 'hulls': dataclasses.asdict(self.hulls),
+            'memory': dataclasses.asdict(self.memory), 'grip_decomposition': dataclasses.asdict(self.grip_decomposition),
             'config_fingerprint': digest}
 
 
@@ -142,7 +143,7 @@ def _worker_state(spec: BenchmarkSpec, cache_dir: str | None) -> dict[str, Any]:
     from dexjax.policy.composite import plan_grasp  # pylint: disable=g-import-not-at-top
     from dexjax.policy.presets import make_policy, uses_models  # pylint: disable=g-import-not-at-top
     release_worker()
-    world = PickingWorld(spec.config, cache_dir=cache_dir, hulls=spec.hulls)
+    world = PickingWorld(spec.config, cache_dir=cache_dir, grip_decomposition=spec.grip_decomposition)
     models = load_models(spec.model) if any(uses_models(p) for p in spec.policies) else {}
     plan = jax.jit(plan_grasp)
     planners = {}
@@ -200,8 +201,8 @@ def _write_json(path: Path, data: Any) -> None:
 
 
 def check_objects(spec: BenchmarkSpec, cache_dir: str | os.PathLike[str] | None = None) -> list[str]:
-  """Prepares (and caches) the object set and its collision hulls here, before any worker starts; returns the
-  usable objects' names.
+  """Prepares (and caches) the object set, its collision hulls and (with the supervisor among the policies) its
+  grasp sets here, before any worker starts; returns the usable objects' names.
 
   Raises:
     ValueError: a malformed source, no usable object, or more objects per trial than usable objects.
@@ -209,8 +210,11 @@ def check_objects(spec: BenchmarkSpec, cache_dir: str | os.PathLike[str] | None 
   from dexjax.generate.pipeline import usable_objects  # pylint: disable=g-import-not-at-top
   from dexjax.objects.collision import cached_collision_hulls  # pylint: disable=g-import-not-at-top
   prepared, rejected = usable_objects(spec.config, cache_dir)
-  for p in prepared:  # the simulation's decomposition, computed here once instead of in every worker
-    cached_collision_hulls(p.mesh, cache_dir=cache_dir, **spec.hulls.kwargs())
+  for p in prepared:  # the judge's finer decomposition, computed here once instead of in every worker
+    cached_collision_hulls(p.mesh, cache_dir=cache_dir, **spec.grip_decomposition.kwargs())
+  if any(p in PRIVILEGED_POLICIES for p in spec.policies):  # and the supervisor's grasp sets
+    from dexjax.bench.supervisor_policy import policy_grasp_sets  # pylint: disable=g-import-not-at-top
+    policy_grasp_sets(spec.config, [p.model for p in prepared], cache_dir)
   if spec.protocol.objects_per_trial > len(prepared):
     skipped = f' ({len(rejected)} rejected: ' + '; '.join(f'{r.file}: {r.reason}' for r in rejected[:3]) + ')'
     raise ValueError(f'objects per trial (--per-trial): expected at most {len(prepared)}, the usable objects of '

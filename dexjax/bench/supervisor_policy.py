@@ -4,9 +4,8 @@ The dataset's supervisor Omega (seed, "Data Collection Policy"; `dexjax.generate
 of the bin: every object's 3-D model, pose and friction. As a policy it picks, for the current bin, the grasp of
 highest robust quality over both grippers' candidates:
 
-1. the objects' grasp sets (`dexjax.generate.pipeline.supervisor_sets`: ``num_grasps`` antipodal / suction grasps per
-   object with their robust quality over the seed's M = 25 draws of pose, friction, mass and gravity; cached on
-   disk), moved into the bin by each object's true pose and turned into the image grasps the policies output
+1. the objects' grasp sets (`dexjax.generate.pipeline.supervisor_sets`: 400 antipodal / suction grasps per object
+   with their robust quality over the seed's M = 25 draws of pose, friction, mass and gravity; cached on disk), moved into the bin by each object's true pose and turned into the image grasps the policies output
    (`parallel_jaw_supervisor_candidates` / `suction_supervisor_candidates`: expressible from the camera, visible in
    the true segmentation, inside the image; every valid grasp, not only the dataset's robust ones), the
    ``max_checked`` of highest set quality tested best first for collisions with the labels' rule;
@@ -120,18 +119,29 @@ class SupervisorPolicy:
     return jax.device_get(actions[int(np.argmax(ranks))])
 
 
-def supervisor_policy(world: Any, num_scored: int = 32, max_checked: int = 256) -> SupervisorPolicy:
+def supervisor_policy(world: Any, num_grasps: int = 400, num_scored: int = 32,
+                      max_checked: int = 256) -> SupervisorPolicy:
   """The `SupervisorPolicy` of a `PickingWorld` (its objects' grasp sets computed or loaded from the world's cache).
 
-  As a policy the supervisor considers every valid grasp of its sets, not only those above the dataset's
+  As a policy the supervisor samples ``num_grasps`` grasps per object and gripper (the dataset's supervisor:
+  100; an object lying in a heap offers only the few on its visible side, and on a level-1 set 100 left objects
+  with no executable grasp where 400 found one), considers every valid one, not only those above the dataset's
   threshold (it ranks them by the reward in the bin itself), tests the ``max_checked`` best of each gripper for
   collisions and scores the ``num_scored`` best collision-free ones; its grasps may lie anywhere in the image (it
   reads no crop, so the border the learned policies need does not apply)."""
-  from dexjax.generate.pipeline import supervisor_sets  # pylint: disable=g-import-not-at-top
   params = world.params.replace(supervisor=world.params.supervisor.replace(boundary=0.0, threshold=0.0,
                                                                            max_checked=max_checked))
-  return SupervisorPolicy(params=params, sets=supervisor_sets(world.config, world.models, world.cache_dir),
-                          num_scored=num_scored)
+  sets = policy_grasp_sets(world.config, world.models, world.cache_dir, num_grasps)
+  return SupervisorPolicy(params=params, sets=sets, num_scored=num_scored)
+
+
+def policy_grasp_sets(config: Any, models: Any, cache_dir: Any = None, num_grasps: int = 400
+                      ) -> tuple[GraspSet, GraspSet]:
+  """The supervisor policy's (parallel-jaw, suction) grasp sets of a run's objects: ``num_grasps`` each, cached
+  on disk (`dexjax.generate.pipeline.supervisor_sets`)."""
+  from dexjax.generate.pipeline import supervisor_sets  # pylint: disable=g-import-not-at-top
+  config = dataclasses.replace(config, supervisor=config.supervisor.replace(num_grasps=num_grasps))
+  return supervisor_sets(config, models, cache_dir)
 
 
 def plan_privileged(policy: SupervisorPolicy, world: Any, key: jax.Array, observation: Observation, state: Any,
@@ -142,4 +152,4 @@ def plan_privileged(policy: SupervisorPolicy, world: Any, key: jax.Array, observ
                 scene_slot_ids(state.object_ids, state.mask))
 
 
-__all__ = ['SUPERVISOR', 'SupervisorPolicy', 'plan_privileged', 'supervisor_policy']
+__all__ = ['SUPERVISOR', 'SupervisorPolicy', 'plan_privileged', 'policy_grasp_sets', 'supervisor_policy']

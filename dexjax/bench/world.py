@@ -35,18 +35,18 @@ from dexjax.render.camera import Camera
 from dexjax.render.noise import noisy_depth
 from dexjax.render.rendering import DepthRenderer, build_render_scene, empty_bin_scene
 from dexjax.objects.collision import HullSettings, cached_collision_hulls
-from dexjax.sim.bodies import heap_object
+from dexjax.sim.bodies import heap_objects
 from dexjax.sim.heap import HeapState, sample_heap_state
 from dexjax.sim.settling import settle
 
 _PROCEDURAL_LEVEL = re.compile(r'procedural:L([123])/')
 
 BENCHMARK_HULLS = HullSettings(max_hulls=64, resolution=400_000)
-"""The benchmark's collision bodies: up to 64 convex pieces per concave object at 400,000 voxels (the datasets' 8
-at 100,000 fill a bowl's cavity: their union over-covers a procedural bowl by 58-63 % of its volume, a hollow
-level-3 part by up to 118 %; 64 pieces: 11-14 % and 8-36 %; docs/benchmark.md). The simulation the judge grasps
-in, and the heaps it settles, then follow the meshes the images and the labels see; convex objects keep their
-own hull either way."""
+"""The decomposition the physics judge's gripper meets: up to 64 convex pieces per concave object at 400,000
+voxels (the datasets' 8 at 100,000 fill a bowl's cavity: their union over-covers a procedural bowl by 58-63 % of
+its volume, a hollow level-3 part by up to 118 %; 64 pieces: 11-14 % and 8-36 %; docs/benchmark.md). The gripper
+then meets the cavities the images and the labels see; objects keep the datasets' 8 pieces for each other (64 for
+all of 25 objects made a judged attempt 60 s instead of 2 s); convex objects keep their own hull either way."""
 
 
 def object_level(name: str) -> int | None:
@@ -96,22 +96,23 @@ class PickingWorld:
     levels: the N objects' difficulty levels (1-3 for procedural objects of that level, else None).
     rejected: object sources or files that could not be used, with reasons.
     cache_dir: the object cache the world was built from (None: the default), also the supervisor's grasp sets'.
-    hulls: the convex decomposition of the objects' collision bodies (`BENCHMARK_HULLS` by default).
+    grip_hulls: per object, the finer convex decomposition the physics judge's gripper meets near the grasp
+      (the ``grip_decomposition``, `BENCHMARK_HULLS` by default); the bodies keep the datasets' decomposition for
+      settling and for each other.
     params: the analytic reward's `LabelParams` (grippers, perturbations, reward settings, bin).
   """
 
   def __init__(self, config: GenerateConfig, *, cache_dir: str | os.PathLike[str] | None = None,
-               hulls: HullSettings | None = None):
-    hulls = BENCHMARK_HULLS if hulls is None else hulls
+               grip_decomposition: HullSettings = BENCHMARK_HULLS):
     self.config, self.cache_dir = config, cache_dir
     prepared, self.rejected = usable_objects(config, cache_dir)
     self.names = [p.name for p in prepared]
     self.levels = [object_level(name) for name in self.names]
     self.meshes = [p.mesh for p in prepared]
     self.models = [p.model for p in prepared]
-    self.hulls = hulls
-    self.bodies = [heap_object(p.mesh, cached_collision_hulls(p.mesh, cache_dir=cache_dir, **hulls.kwargs()),
-                               name=p.name) for p in prepared]
+    self.bodies = heap_objects(prepared)
+    self.grip_hulls = [cached_collision_hulls(p.mesh, cache_dir=cache_dir, **grip_decomposition.kwargs())
+                       for p in prepared]
     self.params: LabelParams = label_params(config)
     width, height = image_size(config)
     self.renderer = DepthRenderer(width, height, backend=config.dataset.render_backend, settings=config.render)

@@ -42,7 +42,7 @@ PARALLEL_JAW, SUCTION = 0, 1
 #: is the single-object one (`jaw_collides`, refined between the samples) against every object, so an overlap of a
 #: finger or the palm with any object is found from about the 1 mm tolerance on (the plain 5 mm sample grid missed
 #: overlaps of up to ~3.5 mm, which the benchmark's physics judge then met as collisions), and the bin test adds the
-#: solids' corners (jaws) and rims (cup, shaft), exact against the floor.
+#: solids' corners (jaws) and rims (cup, shaft), exact against the floor, and the jaws' boxes against the walls.
 LABEL_VERSION = 4
 
 

@@ -50,8 +50,8 @@ from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suc
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.grasp_quality import QualityConfig
 from dexjax.quality.gripper_geometry import (jaw_clearance, jaw_collision_points, jaw_contact_points,
-                                             jaw_corner_points, suction_collision_points, suction_contact_points,
-                                             suction_rim_points, to_world)
+                                             jaw_corner_points, jaw_solids, suction_collision_points,
+                                             suction_contact_points, suction_rim_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
                                    robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations,
                                    with_known_friction, with_known_mass)
@@ -196,6 +196,36 @@ def bin_collision(points: jax.Array, bin_: Bin, tolerance: float) -> jax.Array:
   return jnp.any(points[:, 2] < -tolerance) | jnp.any(inside)
 
 
+def boxes_overlap(centre_a: jax.Array, axes_a: jax.Array, half_a: jax.Array, centre_b: jax.Array,
+                  half_b: jax.Array) -> jax.Array:
+  """() bool: an oriented box (centre (3,), axes (3, 3) as columns, half sizes (3,)) overlaps an axis-aligned box
+  (centre (3,), half sizes (3,)); exact (the separating axis test over the 15 axes of two boxes)."""
+  eye = jnp.eye(3, dtype=axes_a.dtype)
+  crosses = jnp.cross(axes_a.T[:, None, :], eye[None, :, :]).reshape(9, 3)
+  candidates = jnp.concatenate([axes_a.T, eye, crosses])
+  norms = jnp.linalg.norm(candidates, axis=1)
+  axes = candidates / jnp.maximum(norms, 1e-9)[:, None]
+  reach_a = jnp.abs(axes @ axes_a) @ half_a
+  reach_b = jnp.abs(axes) @ half_b
+  separated = (jnp.abs(axes @ (centre_b - centre_a)) > reach_a + reach_b) & (norms > 1e-6)
+  return ~jnp.any(separated)
+
+
+def _jaw_wall_collision(pose: jax.Array, gripper: ParallelJawGripper, params: RewardParams, width: jax.Array,
+                        bin_: Bin) -> jax.Array:
+  """() bool: a swept finger or the palm (boxes, `jaw_solids`) overlaps a bin wall shrunk by the tolerance."""
+  from dexjax.sim.scene import bin_boxes  # pylint: disable=g-import-not-at-top (avoids a quality <-> sim cycle)
+  tol = params.quality.collision_tolerance
+  walls = bin_boxes(bin_)[1:]
+  hit = jnp.asarray(False)
+  for lo, hi, _ in jaw_solids(gripper, params.quality.geometry, width):
+    centre = pose[:3, :3] @ (0.5 * (lo + hi)) + pose[:3, 3]
+    for wall_centre, wall_half in walls:
+      hit |= boxes_overlap(centre, pose[:3, :3], 0.5 * (hi - lo), jnp.asarray(wall_centre, jnp.float32),
+                           jnp.asarray(wall_half, jnp.float32) - tol)
+  return hit
+
+
 def _to_object_frame(pose: jax.Array, point: jax.Array, directions: jax.Array):
   """A world point (3,) and directions (k, 3) in the frame of the object at ``pose`` (7,)."""
   rot = quat_to_matrix(pose[3:], xp=jnp)
@@ -268,7 +298,8 @@ def parallel_jaw_collisions(grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin
   the samples nearest to the object, lies more than ``params.quality.collision_tolerance`` inside it (so an
   overlap from about the tolerance on is found anywhere, not only where a sample lies; point jaws, with no
   finger volume, test the palm's samples alone). ``hit_bin``: a sample or a corner of the solids
-  (`jaw_corner_points`: exact against the floor) inside the bin (`bin_collision`).
+  (`jaw_corner_points`: exact against the floor) below the floor or in a wall (`bin_collision`), or a solid
+  overlapping a wall shrunk by the tolerance (`boxes_overlap`: exact, also where an edge crosses a wall's edge).
   """
   tol = params.quality.collision_tolerance
   geometry = params.quality.geometry
@@ -279,7 +310,9 @@ def parallel_jaw_collisions(grasp: ParallelJawGrasp, scene: HeapScene, bin_: Bin
   else:
     hit_object = jnp.any(slot_distances(scene, body) < -tol)
   corners = to_world(pose, jaw_corner_points(gripper, geometry, grasp.width))
-  return hit_object, bin_collision(jnp.concatenate([body, corners]), bin_, tol)
+  hit_bin = bin_collision(jnp.concatenate([body, corners]), bin_, tol) | _jaw_wall_collision(pose, gripper, params,
+                                                                                            grasp.width, bin_)
+  return hit_object, hit_bin
 
 
 def suction_collisions(grasp: SuctionGrasp, scene: HeapScene, bin_: Bin, gripper: SuctionGripper = SuctionGripper(),

@@ -184,6 +184,10 @@ def drop_poses(objects: Sequence[HeapObject], state: HeapState, settings: Settle
   return positions, quats
 
 
+_ARENA_GEOMS = 320  # up to this many object geoms, MuJoCo sizes the arena itself (every dataset heap: 10 x 8 hulls)
+_ARENA_BYTES_PER_GEOM = 96 * 1024  # above it: 96 KB per geom (25 objects of 64 hulls needed ~20-40 MB at 411 contacts)
+
+
 def heap_spec(objects: Sequence[HeapObject], state: HeapState, settings: SettleSettings = SettleSettings()
               ) -> mujoco.MjSpec:
   """The MuJoCo spec (not compiled) of one (unbatched) heap: bin, ground plane and the heap's objects as free
@@ -209,6 +213,9 @@ def heap_spec(objects: Sequence[HeapObject], state: HeapState, settings: SettleS
     raise ValueError(f'HeapState.object_ids: expected ids in [0, {len(objects)}) (the available objects), got {bad}')
   spec = mujoco.MjSpec()
   spec.modelname = 'heap'
+  geoms = sum(len(objects[int(ids[s])].hulls) for s in slots)
+  if geoms > _ARENA_GEOMS:  # MuJoCo's default arena overflows with many hulls in contact (e.g. 25 decomposed objects)
+    spec.memory = _ARENA_BYTES_PER_GEOM * geoms
   spec.default.geom.solref = [settings.contact_timeconst, 1.0]
   opt = spec.option
   opt.timestep = settings.timestep
