@@ -38,6 +38,8 @@ from pathlib import Path
 from dexjax.cli import (FAILURE_EXIT, OK_EXIT, add_overwrite_flag, atomic_write, check_distinct, check_output_file,
                         command, is_dexjax_png, owned_json)
 
+# `dexjax.policy.IMAGE_POLICIES`, spelled out so that --help does not import JAX (tests/test_plan_cli.py plans
+# with each of those through this CLI).
 _POLICIES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 'suction_heuristic',
              'composite_heuristic')
 

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from dexjax.bench.analytic_judge import analytic_verdict, world_grasp
+from dexjax.generate.labels import LabelParams
 from dexjax.policy import action_from_grasp, observation
-from dexjax.quality.heap_reward import REWARD_FAILURES, HeapScene, stack_models
+from dexjax.quality.heap_reward import REWARD_FAILURES, HeapScene, parallel_jaw_collisions, stack_models
 from dexjax.render.camera import Intrinsics, project
 from dexjax.render.distribution import camera_from_spherical
 from dexjax.sampling.image_grasps import ImageParallelJawGrasp, ImageSuctionGrasp
@@ -53,8 +54,9 @@ def test_world_grasp_inverts_the_camera_projection(cube_scene):
 
 def test_jaws_across_the_cube_succeed_and_a_grasp_beside_it_finds_no_object(cube_scene):
   scene, tilted = cube_scene
-  # The parallel jaw approaches along the optical axis: a camera straight above (a tilted approach at the cube's
-  # mid-height would put a fingertip into the floor: 'collision_bin').
+  # The parallel jaw approaches along the optical axis: a camera straight above. From the tilted camera the jaw
+  # axis dips 26 degrees: the lower fingertip goes into the floor and the tilted pads cut the cube's edges (the
+  # reward names the object first).
   camera = camera_from_spherical(jnp.zeros(3), 0.6, 0.4, 0.0, tilted.intrinsics)
   obs = observation(jnp.full((300, 400), 0.6), camera)
   centre = np.array([0.05, -0.03, 0.02])
@@ -69,7 +71,13 @@ def test_jaws_across_the_cube_succeed_and_a_grasp_beside_it_finds_no_object(cube
   tilted_action = action_from_grasp(observation(obs.depth, tilted), ImageParallelJawGrasp(
       center=_pixel_and_depth(tilted, centre)[0], angle=angle, depth=_pixel_and_depth(tilted, centre)[1],
       width=jnp.float32(0.05)), jnp.float32(0.9), True)
-  assert REWARD_FAILURES[int(analytic_verdict(KEY, tilted_action, tilted, scene).failure)] == 'collision_bin'
+  assert REWARD_FAILURES[int(analytic_verdict(KEY, tilted_action, tilted, scene).failure)] == 'collision_object'
+  params = LabelParams()
+  hits = parallel_jaw_collisions(world_grasp(tilted_action, tilted), scene, params.bin, params.parallel_jaw,
+                                 params.reward)
+  assert [bool(hit) for hit in hits] == [True, True]
+  assert [bool(hit) for hit in parallel_jaw_collisions(world_grasp(across, camera), scene, params.bin,
+                                                       params.parallel_jaw, params.reward)] == [False, False]
   far_uv, far_z = _pixel_and_depth(camera, (-0.12, 0.1, 0.0))
   beside = action_from_grasp(obs, ImageParallelJawGrasp(center=far_uv, angle=angle, depth=far_z + 0.01,
                                                         width=jnp.float32(0.05)), jnp.float32(0.9), True)

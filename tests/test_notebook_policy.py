@@ -15,7 +15,7 @@ def test_policy_notebook(run_notebook):
   small = {"NUM_SEED": 40, "NUM_RESAMPLE": 16, "NUM_ITERATIONS": 1, "NUM_CANDIDATES": 48}
   values = {
       "objects": "objects",
-      "policy_names": "list(POLICY_NAMES)",
+      "policy_names": "list(IMAGE_POLICIES)",
       "actions": "{k: " + _ACTION.format(a="a") + " for k, a in actions.items()}",
       "per_gripper_valid": "np.asarray(actions['ambidextrous'].per_gripper.valid)",
       "per_gripper_probability": "np.asarray(actions['ambidextrous'].per_gripper.probability)",

@@ -19,8 +19,7 @@ import pytest
 from dexjax.cli import is_dexjax_png
 from dexjax.models import GQCNNConfig, GraspQualityModel, Normalization, init_gqcnn, save_model
 from dexjax.plan import main as plan_main
-from dexjax.policy import POLICY_NAMES
-from dexjax.policy.presets import PRIVILEGED_POLICIES
+from dexjax.policy import IMAGE_POLICIES
 from dexjax.render.__main__ import main as render_main
 
 
@@ -56,7 +55,7 @@ def _on_object(plan, mask) -> bool:
 
 def test_every_policy_grasps_an_object_with_a_pose(scene):
   root, mask = scene
-  for policy in (p for p in POLICY_NAMES if p not in PRIVILEGED_POLICIES):  # the supervisor needs a simulated bin
+  for policy in IMAGE_POLICIES:  # the supervisor needs a simulated bin
     assert _plan(root, '--policy', policy, '--cem', 'gqcnn') == 0, policy
     plan = json.loads((root / 'plan.json').read_text())
     assert plan['policy'] == policy and plan['gripper'] in ('parallel_jaw', 'suction')

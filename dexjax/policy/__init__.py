@@ -28,14 +28,15 @@ from dexjax.policy.heuristics import (ParallelJawForceClosureCentroid, SuctionPl
 from dexjax.policy.observation import Observation, observation
 from dexjax.policy.preprocess import (background_mask, fit_plane, inpaint_depth, plane_mask, prepare_observation)
 from dexjax.policy.polish import PolishParams, polish_grasps
-from dexjax.policy.presets import POLICY_NAMES, cem_params, default_sampler, make_policy
+from dexjax.policy.presets import (IMAGE_POLICIES, POLICY_NAMES, PRIVILEGED_POLICIES, cem_params, default_sampler,
+                                   make_policy)
 from dexjax.policy.ranking import RandomPolicy, RankingPolicy, random_policy, ranking_policy
 from dexjax.policy.scorers import GRIPPERS, GQCNNScorer
 
 __all__ = [
     'CEMParams', 'CEMPolicy', 'GRIPPERS', 'GQCNNScorer', 'GaussianMixture', 'GraspAction', 'GreedyComposite',
-    'HeuristicComposite', 'Observation', 'POLICY_NAMES', 'ParallelJawForceClosureCentroid', 'PolicySamples',
-    'PolishParams', 'polish_grasps',
+    'HeuristicComposite', 'IMAGE_POLICIES', 'Observation', 'POLICY_NAMES', 'PRIVILEGED_POLICIES',
+    'ParallelJawForceClosureCentroid', 'PolicySamples', 'PolishParams', 'polish_grasps',
     'RandomComposite', 'RandomPolicy', 'RankingPolicy', 'SuctionPlanarityCentroid', 'action_from_grasp',
     'background_mask', 'cem_params', 'cem_policy', 'composite_heuristic_choice', 'default_sampler', 'fit_gaussian_mixture',
     'fit_plane', 'gaussian_mixture_log_likelihood', 'greedy_composite_policy', 'heuristic_composite_policy',

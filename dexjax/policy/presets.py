@@ -35,6 +35,8 @@ POLICY_NAMES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 
                 'composite_heuristic', 'supervisor')
 PRIVILEGED_POLICIES = ('supervisor',)
 """Policies that read the true state of a simulated bin, not only the image: benchmark-only references."""
+IMAGE_POLICIES = tuple(name for name in POLICY_NAMES if name not in PRIVILEGED_POLICIES)
+"""Policies that plan on a depth image alone (`plan_grasp`, ``python -m dexjax.plan``)."""
 CEM_PRESETS = ('seed', 'gqcnn')
 CEM_POLICIES = ('ambidextrous', 'parallel_jaw', 'suction')
 RANKING_CANDIDATES = 400
@@ -147,6 +149,6 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
                             parallel_jaw=RankingPolicy(ParallelJawForceClosureCentroid(), sampler(PARALLEL_JAW)))
 
 
-__all__ = ['CEM_POLICIES', 'CEM_PRESETS', 'POLICY_NAMES', 'PRIVILEGED_POLICIES', 'RANKING_CANDIDATES', 'cem_params',
+__all__ = ['CEM_POLICIES', 'CEM_PRESETS', 'IMAGE_POLICIES', 'POLICY_NAMES', 'PRIVILEGED_POLICIES', 'RANKING_CANDIDATES', 'cem_params',
            'default_sampler', 'make_policy',
            'required_grippers', 'uses_models']
