@@ -2,14 +2,15 @@
 
   python benchmarks/physics_sensitivity.py [--masses 0.1 0.3 0.6]
 
-Every constant of the physics judge has a source (docs/benchmark.md, "Where every number comes from"); four are
-estimates, not measurements: the bellows' bending stiffness, its damping ratio and its angle range, and (derived
-from the seed's payload rather than measured on its robot) the tool acceleration. This runs a fixed set of
-grasps on objects lying alone in the bin (the canonical cases of tests/test_physics_judge.py and a few that sit
+Every constant of the physics judge has a source (docs/benchmark.md, "Where every number comes from"); five are
+estimates, not measurements: the bellows' bending stiffness open and sealed, its damping ratio and its angle range,
+and (derived from the seed's payload rather than measured on its robot) the tool acceleration. This runs a fixed set
+of grasps on objects lying alone in the bin (the canonical cases of tests/test_physics_judge.py and a few that sit
 near the limits: suction 2 cm and 5 cm off the centre of mass, a tall can held at its top, jaws at a bar's end)
-under the default judge and under each estimate halved, doubled or swapped for an extreme (a nearly rigid cup, the
-YuMi's maximum acceleration of 11 m/s²), and reports which grasps succeed in each variant, the outcome counts, and
-the agreement of each variant with the default: how much the verdicts rest on the guesses.
+under the default judge and under each estimate scaled or swapped for an extreme (a sealed bellows contracted
+onto its folds, 4 and 14 times stiffer than the open one; the YuMi's maximum acceleration of 11 m/s²), and
+reports which grasps succeed in each variant, the outcome counts, and the agreement of each variant with the
+default: how much the verdicts rest on the guesses.
 """
 
 from __future__ import annotations
@@ -73,9 +74,12 @@ def _variants() -> dict:
   with_acc = lambda a: dataclasses.replace(base, path=dataclasses.replace(
       base.path, motion=dataclasses.replace(motion, acceleration=a)))
   return {'default': base,
-          'stiffness x0.5': with_tool(bellows_stiffness=0.5 * tool.bellows_stiffness),
-          'stiffness x2': with_tool(bellows_stiffness=2.0 * tool.bellows_stiffness),
-          'stiffness x20 (nearly rigid)': with_tool(bellows_stiffness=20.0 * tool.bellows_stiffness),
+          'stiffness x0.5': with_tool(bellows_stiffness=0.5 * tool.bellows_stiffness,
+                                      sealed_stiffness=0.5 * tool.sealed_stiffness),
+          'stiffness x2': with_tool(bellows_stiffness=2.0 * tool.bellows_stiffness,
+                                    sealed_stiffness=2.0 * tool.sealed_stiffness),
+          'sealed stiffness 0.2 (partly contracted)': with_tool(sealed_stiffness=0.2),
+          'sealed stiffness 0.7 (folds stacked: a solid tube)': with_tool(sealed_stiffness=0.7),
           'damping ratio 0.1': with_tool(bellows_damping_ratio=0.1),
           'damping ratio 0.7': with_tool(bellows_damping_ratio=0.7),
           'angle range 0.3 rad': with_tool(bellows_max_angle=0.3),
@@ -89,7 +93,8 @@ def main() -> None:
   args = p.parse_args()
   shapes = _shapes()
   models = {name: build_object_model(mesh, grid_size=48) for name, (mesh, _, _) in shapes.items()}
-  heap = HeapState(object_ids=np.zeros(2, np.int32), mask=np.array([True, False]), positions=np.zeros((2, 3), np.float32),
+  heap = HeapState(object_ids=np.zeros(2, np.int32), mask=np.array([True, False]),
+                   positions=np.zeros((2, 3), np.float32),
                    quaternions=np.tile([1.0, 0, 0, 0], (2, 1)).astype(np.float32),
                    friction=np.array([0.8, 0.0], np.float32))
   results, seconds = {}, {}
@@ -108,8 +113,9 @@ def main() -> None:
     results[name] = outcomes
     seconds[name] = round(time.perf_counter() - start, 2)
   default = results['default']
-  summary = {name: {'successes': sum(v == 'none' for v in r.values()),
-                    'agreement_with_default': sum((v == 'none') == (default[k] == 'none') for k, v in r.items()) / len(r),
+  agree = {name: sum((v == 'none') == (default[k] == 'none') for k, v in r.items()) / len(r)
+           for name, r in results.items()}
+  summary = {name: {'successes': sum(v == 'none' for v in r.values()), 'agreement_with_default': agree[name],
                     'seconds': seconds[name]} for name, r in results.items()}
   print(json.dumps({'machine': describe(), 'cases': len(cases), 'summary': summary, 'outcomes': results}, indent=1))
 

@@ -27,9 +27,10 @@ The seed's success: the robot "lifts and transports exactly one object from the 
   (a ray from inside the cup; the mouth may have pressed up to the bellows' height into it, or stopped up to the
   contact tolerance short), in the object's simulated pose, along the cup's simulated axis after the guarded
   approach. A sealed cup holds the object with a weld to the bellows' lip, which is hinged to the hand with the
-  bellows' bending stiffness: the held object swings on the compliant bellows as on a real cup. Every step the
-  lip's wrench on the object is checked against the labels' suction-ring limits and the seal breaks on a
-  sustained violation (`dexjax.bench.suction_hold`); venting the cup at the receptacle releases the object.
+  sealed bellows' bending stiffness (`ToolSettings.sealed_stiffness`): the held object swings on the compliant
+  bellows as on a real cup. Every step the lip's wrench on the object is checked against the labels' suction-ring
+  limits and the seal breaks on a sustained violation (`dexjax.bench.suction_hold`); venting the cup at the
+  receptacle releases the object.
 
 The verdict: success when exactly one object, the one gripped, ends in the receptacle. Failure reasons:
 `PHYSICS_FAILURES`. The returned state holds every object's pose at the end (or where the attempt stopped): the
@@ -221,8 +222,8 @@ def _check_held(sim: GraspScene, phase: int, slot: int) -> tuple[str | None, int
 
 def _seal_on(sim: GraspScene, objects: Sequence[HeapObject], models: Sequence[ObjectModel], heap: HeapState,
              gripper: SuctionGripper, detail: dict[str, Any]) -> tuple[str | None, int, int, SealHold | None]:
-  """The seal test at the cup's actual contact; activates the vacuum weld when it seals and tunes the bellows'
-  damping to the held object.
+  """The seal test at the cup's actual contact; activates the vacuum weld when it seals and sets the sealed
+  bellows' stiffness and damping (`_seal_bellows`).
 
   Returns (failure reason or None, the weld's id or -1, the object's slot or -1, the hold or None).
   """
@@ -251,20 +252,25 @@ def _seal_on(sim: GraspScene, objects: Sequence[HeapObject], models: Sequence[Ob
   d.eq_active[eq] = 1
   hold = seal_hold(objects[obj], np.asarray(local.center, np.float64), np.asarray(local.approach, np.float64),
                    float(heap.friction[slot]), gripper)
-  _tune_bellows(sim, objects[obj], rot, origin, mouth - 0.5 * gripper.cone_height * frame[:, 0], frame)
+  _seal_bellows(sim, objects[obj], rot, origin, mouth - 0.5 * gripper.cone_height * frame[:, 0], frame)
   return None, eq, slot, hold
 
 
-def _tune_bellows(sim: GraspScene, obj: HeapObject, rot: np.ndarray, origin: np.ndarray, pivot: np.ndarray,
+def _seal_bellows(sim: GraspScene, obj: HeapObject, rot: np.ndarray, origin: np.ndarray, pivot: np.ndarray,
                   frame: np.ndarray) -> None:
-  """Sets each bellows hinge's damping for the held object's moment of inertia about it (a fixed damping ratio)."""
-  m = sim.model
+  """The bellows under vacuum: each hinge gets the sealed stiffness and armature, and the damping of the bellows'
+  damping ratio for the held object's moment of inertia about it."""
+  m, tool = sim.model, sim.settings.tool
   com = rot @ obj.center_of_mass + origin
   arm = com - pivot
   inertia = rot @ obj.inertia @ rot.T
   for name, axis in zip(gb.BELLOWS_JOINTS, (frame[:, 1], frame[:, 2])):
-    about = float(axis @ inertia @ axis + obj.mass * (arm @ arm - (arm @ axis) ** 2))
-    m.dof_damping[m.jnt_dofadr[m.joint(name).id]] = gb.bellows_damping(sim.settings.tool, about)
+    joint = m.joint(name).id
+    dof = m.jnt_dofadr[joint]
+    about = float(axis @ inertia @ axis + obj.mass * (arm @ arm - (arm @ axis) ** 2)) + tool.sealed_armature
+    m.jnt_stiffness[joint] = tool.sealed_stiffness
+    m.dof_armature[dof] = tool.sealed_armature
+    m.dof_damping[dof] = gb.bellows_damping(tool, about, tool.sealed_stiffness)
 
 
 __all__ = ['PHYSICS_FAILURES', 'PhysicsOutcome', 'PhysicsSettings', 'execute_grasp', 'receptacle_centre']

@@ -15,7 +15,8 @@ mouth):
   no collision solid: the seal model is the lip's physics) and the tool shaft behind it, on the hand; the
   bellows is a body ``lip`` at the cup's mouth hinged to the hand about the two axes across the cup, at half the
   bellows' height behind the mouth, with the bellows' bending stiffness and damping and its angle range
-  (`ToolSettings`). The seal and the vacuum hold are the judge's (`dexjax.bench.execution`): one weld
+  (`ToolSettings`; once a seal forms the judge sets the hinges to ``sealed_stiffness`` and damps them for the held
+  object). The seal and the vacuum hold are the judge's (`dexjax.bench.execution`): one weld
   ``vacuum_<body>`` between the lip and each object, inactive until a seal forms on that object, so every load
   on the held object reaches the hand through the compliant bellows.
 
@@ -66,10 +67,18 @@ class ToolSettings:
     contact_timeconst: time constant of gripper contacts, s.
     bin_friction: friction of gripper-bin contacts.
     cup_body_length: length of the rigid cup body behind the compliant bellows, m.
-    bellows_stiffness: bending stiffness of the bellows, N m / rad (an estimate, no maker publishes it; see
-      docs/benchmark.md: a 20 mm silicone tube of 1.5 mm wall and 1 cm length bends at E I / L ~ 0.7 N m/rad with
-      E ~ 1.5 MPa, a convoluted bellows is one to two orders of magnitude softer; a finger tilts one by 30 degrees
-      with about 1 N at 2 cm).
+    bellows_stiffness: bending stiffness of the open bellows (before a seal), N m / rad (an estimate, no maker
+      publishes it; see docs/benchmark.md: a 20 mm silicone tube of 1.5 mm wall and 1 cm length bends at
+      E I / L ~ 0.7 N m/rad with E ~ 1.5 MPa, a convoluted bellows is one to two orders of magnitude softer; a
+      finger tilts one by 30 degrees with about 1 N at 2 cm).
+    sealed_stiffness: bending stiffness of the sealed bellows, N m / rad; default the open bellows' (an estimate:
+      under vacuum a bellows cup contracts onto its folds, and stacked folds could bend up to the solid tube's
+      ~0.7 N m/rad; with 0.7 the supervisor's level-1 reliability fell from 0.90 to 0.82, neighbours' pushes in
+      the lift reaching the seal, and no maker publishes the figure: docs/benchmark.md).
+    sealed_armature: rotor inertia added to the bellows' hinges once sealed, kg m² (numerical: MuJoCo integrates
+      joint stiffness explicitly, and a stiff sealed hinge of a 20 g lip on a soft vacuum weld would ring at
+      omega dt ~ 1 at 2 ms steps; 5e-5 keeps omega dt ~ 0.2 up to 0.7 N m/rad, a few percent of a held object's
+      inertia about the hinge).
     bellows_damping_ratio: damping ratio of the bellows' bending with the held object (an estimate: silicone
       rubber's loss factor of about 0.1-0.2 alone gives 0.05-0.1; the air the bellows pumps adds to it).
     bellows_max_angle: the bellows' bending range, rad (about 30 degrees: the "angle compensation" bellows cups
@@ -93,6 +102,8 @@ class ToolSettings:
   bin_friction: float = 0.5
   cup_body_length: float = 0.02
   bellows_stiffness: float = 0.05
+  sealed_stiffness: float = 0.05
+  sealed_armature: float = 5e-5
   bellows_damping_ratio: float = 0.3
   bellows_max_angle: float = 0.5
   lip_mass: float = 0.02
@@ -190,10 +201,12 @@ def add_suction_cup(spec: mujoco.MjSpec, pose: np.ndarray, gripper: SuctionGripp
                   damping=bellows_damping(tool, 0.5 * ring + tool.lip_mass * 0.25 * h * h))
 
 
-def bellows_damping(tool: ToolSettings, inertia: float) -> float:
+def bellows_damping(tool: ToolSettings, inertia: float, stiffness: float | None = None) -> float:
   """Damping (N m s / rad) of the bellows' hinges at ``tool.bellows_damping_ratio`` for a held ``inertia`` (kg m²,
-  about the hinge); the judge re-tunes the hinges to the object the cup holds."""
-  return 2.0 * tool.bellows_damping_ratio * float(np.sqrt(tool.bellows_stiffness * inertia))
+  about the hinge) and a hinge ``stiffness`` (N m / rad; default the open bellows'); the judge re-tunes the hinges
+  to the sealed bellows and the object the cup holds."""
+  stiffness = tool.bellows_stiffness if stiffness is None else stiffness
+  return 2.0 * tool.bellows_damping_ratio * float(np.sqrt(stiffness * inertia))
 
 
 def add_gripper_pairs(spec: mujoco.MjSpec, gripper_geoms: Sequence[str], object_geoms: Sequence[tuple[str, float]],
@@ -241,6 +254,6 @@ def add_receptacle(spec: mujoco.MjSpec, centre: Sequence[float], inner_half: flo
   return names
 
 
-__all__ = ['BELLOWS_JOINTS', 'CUP', 'FINGERS', 'FINGERTIPS', 'HAND', 'LIP', 'PALM', 'RECEPTACLE', 'SHAFT', 'TARGET', 'ToolSettings',
-           'VACUUM', 'add_gripper_pairs', 'add_parallel_jaw', 'add_receptacle', 'add_suction_cup', 'add_vacuum',
-           'bellows_damping', 'rotation_quat']
+__all__ = ['BELLOWS_JOINTS', 'CUP', 'FINGERS', 'FINGERTIPS', 'HAND', 'LIP', 'PALM', 'RECEPTACLE', 'SHAFT', 'TARGET',
+           'ToolSettings', 'VACUUM', 'add_gripper_pairs', 'add_parallel_jaw', 'add_receptacle', 'add_suction_cup',
+           'add_vacuum', 'bellows_damping', 'rotation_quat']
