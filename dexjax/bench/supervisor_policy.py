@@ -5,17 +5,21 @@ of the bin: every object's 3-D model, pose and friction. As a policy it picks, f
 highest robust quality over both grippers' candidates:
 
 1. the objects' grasp sets (`dexjax.generate.pipeline.supervisor_sets`: 400 antipodal / suction grasps per object
-   with their robust quality over the seed's M = 25 draws of pose, friction, mass and gravity; cached on disk), moved into the bin by each object's true pose and turned into the image grasps the policies output
-   (`parallel_jaw_supervisor_candidates` / `suction_supervisor_candidates`: expressible from the camera, visible in
-   the true segmentation, inside the image; every valid grasp, not only the dataset's robust ones), the
-   ``max_checked`` of highest set quality tested best first for collisions with the labels' rule;
+   with their robust quality over the seed's M = 25 draws of pose, friction, mass and gravity's direction: within
+   a cone of pi/6 about the cup's axis for suction, any direction for the jaws, the seed's stand-in for the
+   robot's accelerations; cached on disk), moved into the bin by each object's true pose and turned into the
+   image grasps the policies output (`parallel_jaw_supervisor_candidates` / `suction_supervisor_candidates`:
+   expressible from the camera, visible in the true segmentation, inside the image; every valid grasp, not only
+   the dataset's robust ones), the ``max_checked`` of highest set quality tested best first for collisions with
+   the labels' rule;
 2. the ``num_scored`` best collision-free candidates of each gripper scored with the seed's reward in this bin
    (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the object's own friction) with the
    supervisor's M = 25 draws instead of the labels' 10, twice: with the labels' Gamma masses and with the
    objects' true masses (part of the state it knows);
-3. the candidate whose smaller robust probability of the two is highest, over both grippers (ties broken by the
-   true-mass probability, the set's quality, then the parallel jaw first), or no grasp: a grasp both the labels
-   and the object's real weight call robust.
+3. the candidate whose smallest score of the three (the two rewards' robust probabilities, the set quality) is
+   highest, over both grippers (ties broken by the true-mass probability, the set's quality, then the parallel
+   jaw first), or no grasp: a grasp the labels, the object's real weight and the robot's accelerations all call
+   robust.
 
 It is the benchmark's reference: if it cannot pick under the physics judge, the simulated world or the labels are
 wrong, not the learning. Its records and figures are marked privileged (``SupervisorPolicy.privileged``).
@@ -48,8 +52,9 @@ SUPERVISOR = 'supervisor'
 @functools.partial(jax.jit, static_argnames=('suction', 'num_scored'))
 def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax.Array, camera: Camera,
                 mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int):
-  """(image grasp, score, set quality, found) of one gripper's best grasp in the bin: the score is the smaller of
-  its robust probabilities with the labels' Gamma masses and with the objects' true ``masses`` (P,) kg."""
+  """(image grasp, score, set quality, found) of one gripper's best grasp in the bin: the score is the smallest of
+  its robust probabilities in the bin with the labels' Gamma masses and with the objects' true ``masses`` (P,) kg,
+  and its set quality (Omega's, with gravity's direction drawn in a cone: the robot's accelerations)."""
   reward = params.reward.replace(num_samples=SUPERVISOR_SAMPLES)
   if suction:
     images, eligible = suction_supervisor_candidates(sets_pk, scene, params.bin, camera, mask, params.supervisor,
@@ -72,7 +77,7 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
   prior = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene)
   known = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene.replace(mass=masses))
   ok = jnp.isfinite(top) & (prior.reward == 1) & (known.reward == 1)
-  robust = jnp.minimum(prior.robust_probability, known.robust_probability)
+  robust = jnp.minimum(jnp.minimum(prior.robust_probability, known.robust_probability), top)
   rank = jnp.where(ok, robust + 1e-3 * known.robust_probability + 1e-6 * top, -jnp.inf)
   best = jnp.argmax(rank)
   return jax.tree.map(lambda a: a[best], chosen), robust[best], top[best], ok[best]
