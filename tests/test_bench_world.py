@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax
@@ -84,7 +85,7 @@ def test_scene_stacks_each_slots_model_with_its_pose_and_friction(world, full):
 
 from dexjax.bench.protocol import Protocol, stop_reason  # noqa: E402
 from dexjax.bench.judges import analytic_judge  # noqa: E402
-from dexjax.bench.trial import run_trial  # noqa: E402
+from dexjax.bench.trial import _bin_level, run_trial  # noqa: E402
 from dexjax.policy import action_from_grasp  # noqa: E402
 from dexjax.sampling.image_grasps import ImageSuctionGrasp  # noqa: E402
 
@@ -160,6 +161,22 @@ def test_consecutive_failures_the_attempt_budget_and_no_grasp_end_a_trial(world)
   # A policy that finds no grasp would find none again in the unchanged bin: one failed attempt ends the trial.
   records = run_trial(world, no_grasp, judges, policy='none', trial=1, protocol=Protocol(objects_per_trial=2))
   assert [(r['stop'], r['reason'], r['success']) for r in records] == [('no_grasp', 'no_grasp', False)]
+  assert records[0]['object'] is None
+  # An attempt that aimed at no object gets the bin's level when every object in it shares one.
+  level_one = [i for i, level in enumerate(world.levels) if level == 1]
+  builtin = [i for i, level in enumerate(world.levels) if level is None]
+  assert len(level_one) == 2 and builtin
+
+  def bin_of(ids):
+    state = BinState.from_json(records[0]['state'])
+    mask = np.zeros_like(state.mask)
+    mask[:len(ids)] = True
+    object_ids = np.full_like(state.object_ids, -1)
+    object_ids[:len(ids)] = ids
+    return dataclasses.replace(state, mask=mask, object_ids=object_ids)
+
+  assert _bin_level(world, bin_of(level_one)) == 1
+  assert _bin_level(world, bin_of([level_one[0], builtin[0]])) is None
 
 
 def edge_suction(key, obs):

@@ -109,3 +109,9 @@ def test_ray_workers_hand_their_trials_to_the_driver(reference, tmp_path):
   assert _strip(json.loads((out / 'results.json').read_text())) == _strip(
       json.loads((reference / 'results.json').read_text()))
   assert len(read_attempts(out / 'attempts.jsonl')) == len(read_attempts(reference / 'attempts.jsonl'))
+
+
+def test_the_benchmark_config_takes_one_source_or_a_sequence():
+  from dexjax.bench.runner import benchmark_config
+  assert benchmark_config('procedural:L1/0:3').objects.sources == ('procedural:L1/0:3',)
+  assert benchmark_config(['a.obj', 'b.obj'], noise=False).objects.sources == ('a.obj', 'b.obj')

@@ -20,8 +20,8 @@ from dexjax.bench.trial import NO_GRASP, Planner, run_trial, trial_key
 from dexjax.bench.world import BENCHMARK_HULLS, BinState, PickingWorld, object_level
 
 __all__ = [
-    'BENCHMARK_HULLS', 'BinState', 'NO_GRASP', 'PickingWorld', 'Planner', 'Protocol', 'STOP_REASONS', 'object_level', 'run_trial',
-    'stop_reason', 'trial_key',
+    'BENCHMARK_HULLS', 'BinState', 'NO_GRASP', 'PickingWorld', 'Planner', 'Protocol', 'STOP_REASONS', 'object_level',
+    'run_trial', 'stop_reason', 'trial_key',
     'Judge', 'Verdict', 'analytic_judge', 'analytic_verdict', 'physics_judge', 'world_grasp',
     'PHYSICS_FAILURES', 'PhysicsOutcome', 'PhysicsSettings', 'execute_grasp', 'receptacle_centre',
     'SealHold', 'seal_hold', 'seal_tolerance', 'collision_samples', 'gripper_collision', 'label_collision',

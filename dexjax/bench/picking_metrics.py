@@ -200,5 +200,6 @@ def object_difficulty(summary: Mapping[str, Mapping[str, Any]]) -> dict[str, dic
   return dict(sorted(out.items(), key=lambda kv: (kv[1]['reliability'], kv[0])))
 
 
-__all__ = ['MIN_JERK_PEAK_ACCELERATION', 'MIN_JERK_PEAK_SPEED', 'MotionModel', 'Z_95', 'cleared_fraction', 'move_seconds',
-           'object_difficulty', 'rated_acceleration', 'reliability', 'sem_interval', 'summarize', 'wilson_interval']
+__all__ = ['MIN_JERK_PEAK_ACCELERATION', 'MIN_JERK_PEAK_SPEED', 'MotionModel', 'Z_95', 'cleared_fraction',
+           'move_seconds', 'object_difficulty', 'rated_acceleration', 'reliability', 'sem_interval', 'summarize',
+           'wilson_interval']

@@ -106,7 +106,8 @@ class BenchmarkSpec:
     return {'policies': list(self.policies), 'objects': list(self.config.objects.sources),
             'protocol': dataclasses.asdict(self.protocol), 'judge': self.judge, 'model': model, 'cem': self.cem,
             'seed': self.seed, 'known_mass': self.known_mass, 'physics': plain_json(dataclasses.asdict(self.physics)),
-            'memory': dataclasses.asdict(self.memory), 'grip_decomposition': dataclasses.asdict(self.grip_decomposition),
+            'memory': dataclasses.asdict(self.memory),
+            'grip_decomposition': dataclasses.asdict(self.grip_decomposition),
             'config_fingerprint': digest}
 
 
@@ -116,13 +117,15 @@ def benchmark_noise() -> Any:
   return SensorNoise(**BENCHMARK_NOISE_SETTINGS)
 
 
-def benchmark_config(objects: list[str] | tuple[str, ...], config: GenerateConfig | None = None,
+def benchmark_config(objects: str | list[str] | tuple[str, ...], config: GenerateConfig | None = None,
                      noise: bool = True) -> GenerateConfig:
-  """``config`` (default: Dex-Net 4.0's `GenerateConfig`) with the benchmark's ``objects`` and, with ``noise``,
-  the benchmark's sensor noise (`benchmark_noise`); without, noise-free images."""
+  """``config`` (default: Dex-Net 4.0's `GenerateConfig`) with the benchmark's ``objects`` (one source or a
+  sequence of sources) and, with ``noise``, the benchmark's sensor noise (`benchmark_noise`); without, noise-free
+  images."""
   from dexjax.render.noise import SensorNoise  # pylint: disable=g-import-not-at-top
   config = GenerateConfig() if config is None else config
-  return dataclasses.replace(config, objects=dataclasses.replace(config.objects, sources=tuple(objects)),
+  sources = (objects,) if isinstance(objects, str) else tuple(objects)  # a string is one source, not its letters
+  return dataclasses.replace(config, objects=dataclasses.replace(config.objects, sources=sources),
                              noise=benchmark_noise() if noise else SensorNoise())
 
 
@@ -301,6 +304,6 @@ def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: 
   return {'policies': policies, 'object_difficulty': object_difficulty(deployable), 'config': settings}
 
 
-__all__ = ['BENCHMARK_NOISE_SETTINGS', 'BenchmarkSpec', 'JUDGES', 'benchmark_config', 'benchmark_noise', 'LOG_FILE', 'RESULTS_FILE', 'SETTINGS_FILE', 'check_objects', 'pairs',
-           'release_worker', 'run_benchmark',
+__all__ = ['BENCHMARK_NOISE_SETTINGS', 'BenchmarkSpec', 'JUDGES', 'LOG_FILE', 'RESULTS_FILE', 'SETTINGS_FILE',
+           'benchmark_config', 'benchmark_noise', 'check_objects', 'pairs', 'release_worker', 'run_benchmark',
            'summarize_run', 'unfinished']

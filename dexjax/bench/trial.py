@@ -159,6 +159,7 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
     chosen = verdicts[advance_by]
     aimed = chosen.target_slot if chosen.target_slot >= 0 else (_aimed_slot(action, segmentation) if action else -1)
     object_id = int(state.object_ids[aimed]) if aimed >= 0 else -1
+    level = world.levels[object_id] if object_id >= 0 else _bin_level(world, state)
     clock = time.perf_counter()
     if chosen.success:
       base = after if after is not None else state
@@ -177,7 +178,7 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
               'verdicts': {n: {'success': v.success, 'reason': v.reason, 'target_slot': v.target_slot, **v.detail}
                            for n, v in verdicts.items()},
               'object': world.names[object_id] if object_id >= 0 else None,
-              'level': world.levels[object_id] if object_id >= 0 else None,
+              'level': level,
               'plan_seconds': plan_seconds, 'motion_seconds': motion.attempt_seconds(), 'stage_seconds': stages,
               'objects_left': state.count, 'consecutive_failures': failures, 'stop': stop,
               'state': state.to_json()}
@@ -187,6 +188,12 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
       append_attempt(log_path, record)
     records.append(record)
   return records
+
+
+def _bin_level(world: PickingWorld, state: BinState) -> int | None:
+  """The level of an attempt that aimed at no object: the bin's, when all its objects share one, else None."""
+  levels = {world.levels[int(i)] for i in state.object_ids[state.mask]}
+  return levels.pop() if len(levels) == 1 else None
 
 
 __all__ = ['NO_GRASP', 'Planner', 'run_trial', 'trial_key']
