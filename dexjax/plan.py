@@ -37,11 +37,7 @@ from pathlib import Path
 
 from dexjax.cli import (FAILURE_EXIT, OK_EXIT, add_overwrite_flag, atomic_write, check_distinct, check_output_file,
                         command, is_dexjax_png, owned_json)
-
-# `dexjax.policy.IMAGE_POLICIES`, spelled out so that --help does not import JAX (tests/test_plan_cli.py plans
-# with each of those through this CLI).
-_POLICIES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 'suction_heuristic',
-             'composite_heuristic')
+from dexjax.policy.presets import IMAGE_POLICIES
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -52,7 +48,7 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--model', metavar='RUN', default='pretrained',
                  help='GQ-CNNs of the learned policies: pretrained (default: the shipped models), a training run '
                       'directory, a saved model directory or a model file')
-  p.add_argument('--policy', choices=_POLICIES, default='ambidextrous', help='policy (default ambidextrous)')
+  p.add_argument('--policy', choices=IMAGE_POLICIES, default='ambidextrous', help='policy (default ambidextrous)')
   p.add_argument('--out', required=True, metavar='plan.json', help='output JSON')
   p.add_argument('--png', metavar='plan.png', help='also draw the plan and the policy samples')
   p.add_argument('--segmask', metavar='M', help='object mask: PNG or .npy, non-zero = objects')
