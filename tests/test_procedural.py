@@ -37,6 +37,7 @@ from dexjax.objects.procedural_shapes import SIZE_RANGE
 from dexjax.objects.procedural_shapes import box
 from dexjax.objects.procedural_solids import LEVEL1_EXTENT_RANGE
 from dexjax.objects.procedural_solids import LEVEL1_JAW_WIDTH
+from dexjax.objects.procedural_solids import LEVEL1_MIN_ROUND_DIAMETER
 from dexjax.objects.procedural_solids import LEVEL1_MIN_THICKNESS
 from dexjax.sim import heap_object
 
@@ -239,6 +240,8 @@ def test_level1_objects_are_household_boxes_and_cylinders():
     for index in range(SIZE_COUNT):
       extents = np.sort(procedural_mesh(1, index, seed).extents)
       assert extents[0] >= LEVEL1_MIN_THICKNESS - 1e-9, (index, seed, extents)
+      if procedural_families(1)[index % 6] in ('cylinder', 'frustum'):  # round: the base is >= 4 cm across
+        assert extents[1] >= LEVEL1_MIN_ROUND_DIAMETER - 1e-9, (index, seed, extents)
       assert LEVEL1_EXTENT_RANGE[0] - 1e-9 <= extents[2] <= LEVEL1_EXTENT_RANGE[1] + 1e-9, (index, seed, extents)
       widths.append(extents[1])
   assert (LEVEL1_MIN_THICKNESS, LEVEL1_EXTENT_RANGE, LEVEL1_JAW_WIDTH) == (0.03, (0.06, 0.14), 0.045)

@@ -3,7 +3,8 @@
 The seed's level 1 holds "prismatic and circular solids" that every policy picks more than 80 % of the time,
 the parallel-jaw-only ones included. These families draw household-sized solids with *absolute* dimensions:
 each ``draw`` picks the object's largest extent in `LEVEL1_EXTENT_RANGE` (0.06-0.14 m, log-uniform) and its
-other dimensions in metres, at least `LEVEL1_MIN_THICKNESS` (0.03 m, 1.5 x the seed's 20 mm suction cup), and
+other dimensions in metres, at least `LEVEL1_MIN_THICKNESS` (0.03 m, 1.5 x the seed's 20 mm suction cup; round
+solids at least `LEVEL1_MIN_ROUND_DIAMETER`, 0.04 m, across, so the cup seals on their curved side), and
 returns them as ``'extent'`` plus model-unit parameters (lengths / extent, so the built shape's largest
 bounding-box side is 1). With probability `LEVEL1_JAW_FRACTION` (0.8) an object's width, the dimension across
 it as it lies, is at most `LEVEL1_JAW_WIDTH` (0.045 m: the seed's 5 cm jaw opening less 5 mm), so that the jaws
@@ -14,7 +15,7 @@ tuna can: the cup's). Balls are at least 6 cm across, wider than the jaws open. 
 * ``cylinder``: a cylinder, tall (soup, coffee cans, jars) or squat (a tuna can);
 * ``rounded_box``: a box with rounded edges (soap bars, erasers, sponges);
 * ``prism``: an irregular convex n-gonal prism, n = 3-8 (toy blocks);
-* ``frustum``: a truncated cone (tubs, cups, cone toys);
+* ``frustum``: a truncated cone, the top 0.5-0.85 of the base across (tubs, cups, cone toys);
 * ``ball``: a sphere or an ellipsoid with axis ratios >= 0.75 (sports and toy balls).
 
 Each family's `Material` (density range and source) is in `procedural_materials`.
@@ -40,7 +41,7 @@ from dexjax.objects.procedural_shapes import log_uniform
 from dexjax.objects.procedural_shapes import polygon
 from dexjax.objects.procedural_shapes import rounded_box
 
-__all__ = ['LEVEL1_EXTENT_RANGE', 'LEVEL1_MIN_THICKNESS', 'LEVEL1_JAW_WIDTH', 'LEVEL1_JAW_FRACTION',
+__all__ = ['LEVEL1_EXTENT_RANGE', 'LEVEL1_MIN_THICKNESS', 'LEVEL1_MIN_ROUND_DIAMETER', 'LEVEL1_JAW_WIDTH', 'LEVEL1_JAW_FRACTION',
            'LEVEL1_FAMILIES', 'prism_outline']
 
 LEVEL1_EXTENT_RANGE: tuple[float, float] = (0.06, 0.14)
@@ -48,6 +49,12 @@ LEVEL1_EXTENT_RANGE: tuple[float, float] = (0.06, 0.14)
 
 LEVEL1_MIN_THICKNESS: float = 0.03
 """Smallest extent of a level-1 object, metres: 1.5 x the seed's 20 mm suction cup, above the jaws' 2 cm reach."""
+
+LEVEL1_MIN_ROUND_DIAMETER: float = 0.04
+"""Smallest diameter of a level-1 cylinder or frustum (its base), metres. The seed's 20 mm cup does not seal on
+the side of a thinner one lying down: on Dex-Net 3.0's seal model (`dexjax.contacts.suction_seal`, 10 % strain)
+the cup vertical on the top line of a lying cylinder strains 0.104 at 3 cm across, 0.070 at 4 cm and 0.054 at
+5 cm (measured 2026-12-06); a cup-only policy could never pick a thinner can lying down."""
 
 LEVEL1_JAW_WIDTH: float = 0.045
 """Widest dimension across a jaw-friendly level-1 object, metres (the seed's 5 cm jaw opening less 5 mm)."""
@@ -69,11 +76,12 @@ def _side(rng: np.random.Generator, largest: float, smallest: float = LEVEL1_MIN
   return float(rng.uniform(smallest, largest))
 
 
-def _extent_and_width(rng: np.random.Generator) -> tuple[float, float, bool]:
-  """(largest extent, width, jaw-friendly), metres: the width (the second-largest dimension) is at most
-  `LEVEL1_JAW_WIDTH` with probability `LEVEL1_JAW_FRACTION`, else uniform up to the extent."""
+def _extent_and_width(rng: np.random.Generator,
+                      smallest: float = LEVEL1_MIN_THICKNESS) -> tuple[float, float, bool]:
+  """(largest extent, width, jaw-friendly), metres: the width (the second-largest dimension, >= ``smallest``) is
+  at most `LEVEL1_JAW_WIDTH` with probability `LEVEL1_JAW_FRACTION`, else uniform up to the extent."""
   extent, jaws = _largest(rng), bool(rng.random() < LEVEL1_JAW_FRACTION)
-  return extent, _side(rng, LEVEL1_JAW_WIDTH if jaws else extent), jaws
+  return extent, _side(rng, LEVEL1_JAW_WIDTH if jaws else extent, smallest), jaws
 
 
 def _draw_box(rng: np.random.Generator) -> Params:
@@ -99,7 +107,7 @@ def _build_rounded_box(p: Params) -> Manifold:
 def _round_solid(rng: np.random.Generator) -> Params:
   """Extent, diameter and height (model units) of a round solid: tall (height = extent; always when
   jaw-friendly, so the diameter is the width) or squat (diameter = extent, e.g. a tuna can)."""
-  extent, width, jaws = _extent_and_width(rng)
+  extent, width, jaws = _extent_and_width(rng, LEVEL1_MIN_ROUND_DIAMETER)
   tall = jaws or bool(rng.random() < 0.5)
   return {'extent': extent, 'diameter': width / extent if tall else 1.0, 'height': 1.0 if tall else width / extent}
 
@@ -113,7 +121,9 @@ def _build_cylinder(p: Params) -> Manifold:
 
 
 def _draw_frustum(rng: np.random.Generator) -> Params:
-  return {**_round_solid(rng), 'top_over_bottom': float(rng.uniform(0.1, 0.85))}
+  # The top at least half the base: a lying frustum's middle is then >= 0.75 x LEVEL1_MIN_ROUND_DIAMETER across,
+  # where the cup seals (a cone of top 0.1 x base is a side the cup seals on nowhere but near its base).
+  return {**_round_solid(rng), 'top_over_bottom': float(rng.uniform(0.5, 0.85))}
 
 
 def _build_frustum(p: Params) -> Manifold:
