@@ -416,14 +416,15 @@ def test_generated_shards_train_both_gqcnns_and_score_every_row(run, tmp_path):
 
 
 def test_labels_match_the_recorded_rows(run):
-  """The small run's rows equal (bit for bit but for float32 geometry, below) those dexjax f658897 made for the
+  """The small run's rows equal (bit for bit but for float32 geometry, below) those dexjax b5f2867 made for the
   same config and seed. The reference was recorded first before the throughput work of issue 18 (dexjax 07484d8,
-  which these rows matched until then), and again at f658897, when issue 42 changed what a run makes: level-1
+  which these rows matched until then), again at f658897, when issue 42 changed what a run makes: level-1
   objects of household size with masses from their materials (SMALL uses procedural:L1/0:3) and labels version 4
-  (the refined jaw collision test). SMALL keeps ``settle.sleep`` off.
+  (the refined jaw collision test), and at b5f2867, when level-1 cylinders became at least 4 cm across
+  (procedural:L1/1 is one). SMALL keeps ``settle.sleep`` off.
   Recorded with ``scripts/record_generate_reference.py``; a render backend other than the recording's draws other
   depth images, so the comparison then needs that backend."""
-  reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_f658897.npz')
+  reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_b5f2867.npz')
   config, out, _, _ = run
   shards = [read_shard(shard_path(out, i)) for i in range(num_shards(config, NUM_IMAGES))]
   from dexjax.render import DepthRenderer

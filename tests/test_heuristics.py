@@ -197,6 +197,35 @@ def test_suction_labels_use_each_objects_centroid():
   assert q_lab[2] == 0.0 and q_mask[2] > q_mask[0]  # background: label 0; the mask centroid lies between boxes
 
 
+def test_instance_jump_segments_the_image_into_the_labelled_objects():
+  # Two boxes 5 mm apart in height touch along a column: the depth jump separates them, so the scorers' own
+  # instances give the same scores as the true labels; without the jump they are one object (the segmask's).
+  d = np.full((H, W), FLOOR, np.float32)
+  labels = np.zeros((H, W), np.int32)
+  for k, (cols, top) in enumerate([((10, 31), TOP), ((31, 52), TOP - 0.005)]):
+    d[20:44, cols[0]:cols[1]] = top
+    labels[20:44, cols[0]:cols[1]] = k + 1
+  obs = observation(jnp.asarray(d), CAMERA, jnp.asarray(labels > 0))
+  g = _suction_grasps([(41.0, 31.5), (20.0, 31.5), (12.0, 25.0)], [TOP - 0.005, TOP, TOP])
+  q_lab = np.asarray(_score(SUCTION.replace(labels=jnp.asarray(labels)), obs, g))
+  q_own = np.asarray(_score(SUCTION.replace(instance_jump=0.004), obs, g))
+  q_merged = np.asarray(_score(SUCTION.replace(instance_jump=0.006), obs, g))
+  np.testing.assert_allclose(q_own, q_lab, rtol=1e-6)
+  np.testing.assert_allclose(q_merged, np.asarray(_score(SUCTION, obs, g)), rtol=1e-6)
+  assert q_own[0] == q_own[1] == 1.0 and q_merged[0] < 1.0
+  # The jaws' scorer: a 4 cm box (12 px) held across, another box apart; its own centroid, not the segmask's.
+  d = np.full((H, W), FLOOR, np.float32)
+  labels = np.zeros((H, W), np.int32)
+  d[20:44, 19:31], labels[20:44, 19:31] = TOP, 1
+  d[40:60, 40:60], labels[40:60, 40:60] = TOP, 2
+  obs = observation(jnp.asarray(d), CAMERA, jnp.asarray(labels > 0))
+  pj_g = _pj_grasps([(24.5, 31.5)])
+  q_own = _score(PJ.replace(instance_jump=0.004), obs, pj_g)
+  np.testing.assert_allclose(q_own, [1.0], rtol=1e-6)
+  np.testing.assert_allclose(q_own, _score(PJ.replace(labels=jnp.asarray(labels)), obs, pj_g), rtol=1e-6)
+  assert 0.0 < float(_score(PJ, obs, pj_g)[0]) < 0.9
+
+
 def test_pj_force_closure_across_the_box_best_near_centroid():
   obs = _box()
   g = _pj_grasps([(31.5, 31.5), (31.5, 35.0), (31.5, 39.0), (31.5, 43.0)])

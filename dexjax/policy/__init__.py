@@ -8,7 +8,8 @@ Every policy is a pytree called as ``policy(key, observation, samples=False) -> 
   optionally its best grasps polished by gradient ascent on the GQ-CNN (`PolishParams`, `polish_grasps`).
 * `GreedyComposite`: the ambidextrous choice, the grasp of highest predicted probability across grippers.
 * `RankingPolicy`, `RandomPolicy`, `RandomComposite`: sample-and-rank, and uniformly random baselines.
-* Heuristic scorers (`SuctionPlanarityCentroid`, `ParallelJawForceClosureCentroid`) and `HeuristicComposite`.
+* Heuristic scorers (`SuctionPlanarityCentroid`, `ParallelJawForceClosureCentroid`) and `HeuristicComposite`;
+  `depth_instances` segments a depth image into objects by depth jumps (their per-object centroids).
 * `GQCNNScorer`: a trained GQ-CNN as the quality function; `make_policy` builds the named policies of
   ``python -m dexjax.plan``.
 * `prepare_observation`: real sensor images to an `Observation` (holes inpainted, a segmask from the user, an
@@ -25,6 +26,7 @@ from dexjax.policy.gmm import (GaussianMixture, fit_gaussian_mixture, gaussian_m
                                sample_gaussian_mixture)
 from dexjax.policy.heuristics import (ParallelJawForceClosureCentroid, SuctionPlanarityCentroid,
                                       composite_heuristic_choice)
+from dexjax.policy.instances import DEFAULT_MAX_JUMP, depth_instances
 from dexjax.policy.observation import Observation, observation
 from dexjax.policy.preprocess import (background_mask, fit_plane, inpaint_depth, plane_mask, prepare_observation)
 from dexjax.policy.polish import PolishParams, polish_grasps
@@ -34,11 +36,12 @@ from dexjax.policy.ranking import RandomPolicy, RankingPolicy, random_policy, ra
 from dexjax.policy.scorers import GRIPPERS, GQCNNScorer
 
 __all__ = [
-    'CEMParams', 'CEMPolicy', 'GRIPPERS', 'GQCNNScorer', 'GaussianMixture', 'GraspAction', 'GreedyComposite',
+    'CEMParams', 'CEMPolicy', 'DEFAULT_MAX_JUMP', 'GRIPPERS', 'GQCNNScorer', 'GaussianMixture', 'GraspAction', 'GreedyComposite',
     'HeuristicComposite', 'IMAGE_POLICIES', 'Observation', 'POLICY_NAMES', 'PRIVILEGED_POLICIES',
     'ParallelJawForceClosureCentroid', 'PolicySamples', 'PolishParams', 'polish_grasps',
     'RandomComposite', 'RandomPolicy', 'RankingPolicy', 'SuctionPlanarityCentroid', 'action_from_grasp',
-    'background_mask', 'cem_params', 'cem_policy', 'composite_heuristic_choice', 'default_sampler', 'fit_gaussian_mixture',
+    'background_mask', 'cem_params', 'cem_policy', 'composite_heuristic_choice', 'default_sampler', 'depth_instances',
+    'fit_gaussian_mixture',
     'fit_plane', 'gaussian_mixture_log_likelihood', 'greedy_composite_policy', 'heuristic_composite_policy',
     'inpaint_depth', 'load_depth', 'load_segmask', 'make_policy', 'observation', 'plan_grasp', 'plane_mask',
     'prepare_observation', 'random_composite_policy', 'random_policy', 'ranking_policy', 'sample_gaussian_mixture',

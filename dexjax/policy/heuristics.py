@@ -10,6 +10,11 @@ pixel distance of the grasp centre to the object centroid: the mean (row, col) o
 centre if the mask is empty), or, when the scorer's optional ``labels`` field holds an (H, W) int instance image,
 the centroid of the pixels sharing the label of the grasp centre's pixel (label 0 = background: score 0), as
 gqcnn's ``obj_segmask``. ``labels`` describes one scene: set it per observation with ``scorer.replace(labels=...)``.
+Without ``labels``, a scorer whose static ``instance_jump`` is set (metres) segments each observation itself into
+instances by depth jumps (`dexjax.policy.depth_instances`: 4-neighbours of the mask within ``instance_jump`` in
+depth share an object), so the centroid is the grasped object's own, read from the image alone; the benchmark's
+heuristics (`dexjax.policy.make_policy`) do, because in a bin of 25 objects the segmask's centroid is the bin's
+centre (docs/deviations.md). ``instance_jump = None`` (the scorers' default) is gqcnn's segmask centroid.
 The scorers do not restrict centres to ``observation.mask`` (a policy's candidates already are).
 
 * `SuctionPlanarityCentroid` (gqcnn ``suction_com_disc_approach_planarity``, Dex-Net 3.0 "Planarity-Centroid"):
@@ -57,6 +62,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from dexjax.policy.instances import depth_instances
 from dexjax.policy.observation import Observation
 from dexjax.policy.scorers import GRIPPERS, PARALLEL_JAW, SUCTION
 from dexjax.render.camera import Camera, pixel_rays
@@ -102,6 +108,15 @@ def _centroid_quality(observation: Observation, center: jax.Array, labels: jax.A
   dist = jnp.hypot(center[:, 1] - c_row, center[:, 0] - c_col)
   q = jnp.clip((jnp.exp(-dist / max(h, w)) - _E1) / (1.0 - _E1), 0.0, 1.0)
   return jnp.where(has_object & jnp.isfinite(q), q, 0.0).astype(jnp.float32)
+
+
+def _object_labels(observation: Observation, labels: jax.Array | None,
+                   instance_jump: float | None) -> jax.Array | None:
+  """The (H, W) instance labels a scorer's centroid term uses: its own ``labels``, else the observation's depth
+  instances when ``instance_jump`` (metres) is set, else None (the segmask's centroid)."""
+  if labels is not None or instance_jump is None:
+    return labels
+  return depth_instances(observation.depth, observation.mask, instance_jump)
 
 
 def suction_window(camera: Camera, min_depth: float, cup_radius: float = 0.01) -> int:
@@ -156,12 +171,15 @@ class SuctionPlanarityCentroid:
     cup_radius: disc radius, metres (the Dex-Net 4.0 cup, `dexjax.grippers.SuctionGripper`: 0.01).
     planarity_threshold: largest disc MSE of a planar grasp, m^2 (1e-6: 1 mm RMS); also the scale of q_p.
     labels: optional (H, W) int instance labels of the scene (0 = background) for per-object centroids.
+    instance_jump: static, without ``labels``: None (the segmask's centroid, gqcnn's default) or the depth jump
+      (metres) separating the instances the centroid term segments each observation into (module doc).
     window: static, side of the pixel window holding the disc (odd; an even value is rounded up), pixels.
   """
 
   cup_radius: float = 0.01
   planarity_threshold: float = 1e-6
   labels: jax.Array | None = None
+  instance_jump: float | None = struct.field(pytree_node=False, default=None)
   window: int = struct.field(pytree_node=False, default=25)
 
   @property
@@ -180,7 +198,8 @@ class SuctionPlanarityCentroid:
   def __call__(self, observation: Observation, grasps: ImageSuctionGrasp) -> jax.Array:
     """(N,) float32 scores: the centroid term q_c of planar grasps, 0 for the others."""
     planar = self.planarity_mse(observation, grasps) <= self.planarity_threshold
-    return jnp.where(planar, _centroid_quality(observation, grasps.center, self.labels), 0.0)
+    labels = _object_labels(observation, self.labels, self.instance_jump)
+    return jnp.where(planar, _centroid_quality(observation, grasps.center, labels), 0.0)
 
 
 def _jaw_contacts(depth: jax.Array, grad: jax.Array, focal: jax.Array, grasp: ImageParallelJawGrasp,
@@ -223,12 +242,14 @@ class ParallelJawForceClosureCentroid:
   Attributes:
     friction: friction coefficient mu of the 2-D friction cones (Dex-Net 2.1: 0.8).
     labels: optional (H, W) int instance labels of the scene (0 = background) for per-object centroids.
+    instance_jump: static, as `SuctionPlanarityCentroid`'s.
     gaussian_sigma: static, smoothing of the depth before the contact normals, pixels (the sampler's 1.0).
     num_steps: static, samples along each jaw's path from its tip to the grasp centre.
   """
 
   friction: float = 0.8
   labels: jax.Array | None = None
+  instance_jump: float | None = struct.field(pytree_node=False, default=None)
   gaussian_sigma: float = struct.field(pytree_node=False, default=1.0)
   num_steps: int = struct.field(pytree_node=False, default=32)
 
@@ -257,7 +278,8 @@ class ParallelJawForceClosureCentroid:
   def __call__(self, observation: Observation, grasps: ImageParallelJawGrasp) -> jax.Array:
     """(N,) float32 scores: the centroid term q_c of force-closure grasps, 0 for the others."""
     fc = self.force_closure(observation, grasps)
-    return jnp.where(fc, _centroid_quality(observation, grasps.center, self.labels), 0.0)
+    labels = _object_labels(observation, self.labels, self.instance_jump)
+    return jnp.where(fc, _centroid_quality(observation, grasps.center, labels), 0.0)
 
 
 def composite_heuristic_choice(suction_best_q: jax.Array, pj_best_q: jax.Array,

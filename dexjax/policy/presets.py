@@ -14,6 +14,8 @@ The samplers are the ones that drew the training candidates (`dexjax.generate` d
 with their border widened, if needed, so a model's rotated crop window stays inside the image:
 ceil(sqrt(2) window / 2) pixels (gqcnn's rule; 68 for 96-pixel windows). The ranking policy scores
 ``num_candidates`` grasps per gripper (default 400, the network evaluations of one seed-default CEM plan).
+The heuristics' centroid term uses each object's own centroid, the objects segmented from the image by depth jumps
+of `DEFAULT_MAX_JUMP` (`dexjax.policy.depth_instances`; gqcnn's default centroid is the whole segmask's).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from dexjax.models.saved import GraspQualityModel
 from dexjax.policy.cem import CEMParams, CEMPolicy
 from dexjax.policy.composite import GreedyComposite, HeuristicComposite, RandomComposite
 from dexjax.policy.heuristics import ParallelJawForceClosureCentroid, SuctionPlanarityCentroid
+from dexjax.policy.instances import DEFAULT_MAX_JUMP
 from dexjax.policy.polish import PolishParams
 from dexjax.policy.ranking import RandomPolicy, RankingPolicy
 from dexjax.policy.scorers import GRIPPERS, PARALLEL_JAW, SUCTION, GQCNNScorer
@@ -142,11 +145,12 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
   if name == 'random':
     return RandomComposite(tuple(RandomPolicy(sampler(g), GQCNNScorer(models[g]) if g in models else None)
                                  for g in GRIPPERS))
-  suction = RankingPolicy(SuctionPlanarityCentroid(), sampler(SUCTION))
+  # Per-object centroids from the image's depth instances: the segmask's centroid is the bin's (heuristics doc).
+  suction = RankingPolicy(SuctionPlanarityCentroid(instance_jump=DEFAULT_MAX_JUMP), sampler(SUCTION))
   if name == 'suction_heuristic':
     return GreedyComposite((suction,))
-  return HeuristicComposite(suction=suction,
-                            parallel_jaw=RankingPolicy(ParallelJawForceClosureCentroid(), sampler(PARALLEL_JAW)))
+  jaws = ParallelJawForceClosureCentroid(instance_jump=DEFAULT_MAX_JUMP)
+  return HeuristicComposite(suction=suction, parallel_jaw=RankingPolicy(jaws, sampler(PARALLEL_JAW)))
 
 
 __all__ = ['CEM_POLICIES', 'CEM_PRESETS', 'IMAGE_POLICIES', 'POLICY_NAMES', 'PRIVILEGED_POLICIES', 'RANKING_CANDIDATES', 'cem_params',
