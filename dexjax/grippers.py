@@ -27,6 +27,12 @@ SUCTION_SAFETY_FACTOR = 1.5
 #: The heaviest object the seed's cup is rated for: its payload over the safety factor, kg (0.6).
 SUCTION_RATED_MASS_KG = SUCTION_PAYLOAD_KG / SUCTION_SAFETY_FACTOR
 
+#: Bending stiffness of the cup's bellows, N m / rad: an estimate (no maker publishes it; docs/benchmark.md): a
+#: 20 mm silicone tube of 1.5 mm wall and 1 cm length bends at E I / L ~ 0.7 N m/rad (E ~ 1.5 MPa), a convoluted
+#: bellows one to two orders softer; a finger tilts one by 30 degrees with about 1 N at 2 cm. The labels' tipping
+#: test (`SuctionGripper.bellows_stiffness`) and the physics judge's bellows (`dexjax.bench.gripper_bodies`) share it.
+BELLOWS_STIFFNESS = 0.05
+
 
 @struct.dataclass
 class ParallelJawGripper:
@@ -112,6 +118,10 @@ class SuctionGripper:
       radian; the cup resists torques about its tangent axes up to pi * r * kappa / sqrt(2). Default
       V / (2 pi): the largest amplitude that keeps the lip pressure of the vacuum non-negative.
     max_strain: largest relative length change of any spring for a seal (Dex-Net 3.0: 10 %).
+    bellows_stiffness: k, the bellows' bending stiffness, N m / rad (`BELLOWS_STIFFNESS`, an estimate). A held
+      object whose centre of mass stands h above the bellows' pivot (half the cone height behind the lip) against
+      gravity is an inverted pendulum on the bellows: it tips over unless k > m g h (`suction_quality`'s
+      ``tips``; e.g. a bowl held from inside).
     contact_tolerance: the approach ray through the grasp centre must first hit the object within this
       distance of the centre (along the approach), metres; otherwise the approach is blocked or misses.
     num_ring_vertices: static, vertices of the perimeter polygon (Dex-Net 3.0: 8).
@@ -126,6 +136,7 @@ class SuctionGripper:
   vacuum_force: float = SUCTION_PAYLOAD_KG * STANDARD_GRAVITY
   elastic_limit: float = SUCTION_PAYLOAD_KG * STANDARD_GRAVITY / (2.0 * math.pi)
   max_strain: float = 0.1
+  bellows_stiffness: float = BELLOWS_STIFFNESS
   contact_tolerance: float = 0.005
   num_ring_vertices: int = struct.field(pytree_node=False, default=8)
   num_edge_subsamples: int = struct.field(pytree_node=False, default=2)
@@ -142,6 +153,7 @@ class SuctionGripper:
         ('vacuum_force', number_or_nan(self.vacuum_force) > 0, 'a number > 0 (newtons)'),
         ('elastic_limit', number_or_nan(self.elastic_limit) >= 0, 'a number >= 0 (newtons per radian)'),
         ('max_strain', 0 < number_or_nan(self.max_strain) < 1, 'a fraction in (0, 1)'),
+        ('bellows_stiffness', number_or_nan(self.bellows_stiffness) >= 0, 'a number >= 0 (N m per radian)'),
         ('contact_tolerance', number_or_nan(self.contact_tolerance) > 0, 'a number > 0 (metres)'),
         ('num_ring_vertices', self.num_ring_vertices >= 3, 'an integer >= 3'),
         ('num_edge_subsamples', self.num_edge_subsamples >= 0, 'an integer >= 0'),

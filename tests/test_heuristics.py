@@ -287,3 +287,13 @@ def test_composite_choice():
     s_best = float(np.max(_score(SUCTION, obs, _suction_grasps(uv, np.asarray(obs.depth)[v, u]))))
     p_best = float(np.max(_score(PJ, obs, _pj_grasps(uv, depth=0.69))))
     assert int(composite_heuristic_choice(s_best, p_best)) == want, (s_best, p_best)
+
+
+def test_named_heuristics_centre_on_each_objects_depth_instance():
+  from dexjax.policy.instances import DEFAULT_MAX_JUMP
+  from dexjax.policy.presets import make_policy
+  suction = make_policy('suction_heuristic', {}).policies[0].scorer
+  composite = make_policy('composite_heuristic', {})
+  assert suction.instance_jump == DEFAULT_MAX_JUMP == 0.004 and suction.labels is None
+  assert composite.suction.scorer.instance_jump == composite.parallel_jaw.scorer.instance_jump == DEFAULT_MAX_JUMP
+  assert SuctionPlanarityCentroid().instance_jump is None  # the scorers' own default stays gqcnn's

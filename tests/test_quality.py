@@ -85,6 +85,21 @@ def test_parallel_jaw_resistance_depends_on_mass_through_the_force_limit(cube):
   assert not bool(_pj_quality(cube, CENTRED, PJ, across.replace(mass=jnp.float32(3.4))).resists)
 
 
+def test_suction_object_above_the_cup_tips_over_on_the_bellows(box):
+  # The cup under the box's bottom face pushing up (approach +z): the centre of mass stands h = 2 cm + half the
+  # 1 cm cone above the bellows' pivot, an inverted pendulum stable iff k > m g h: m < 0.05 / (9.81 x 0.025)
+  # = 0.204 kg. Hanging from the top face, the same box never tips.
+  below = SuctionGrasp(center=jnp.array([0.0, 0.0, -0.02]), approach=jnp.array([0.0, 0.0, 1.0]))
+  c = Conditions(mass=jnp.float32(0.19), friction=jnp.float32(0.8), gravity=DOWN, disturbance=jnp.zeros(6))
+  assert FAILURE_REASONS[int(_suction_quality(box, below, CUP, c).failure)] == "none"
+  heavier = c.replace(mass=jnp.float32(0.22))
+  assert FAILURE_REASONS[int(_suction_quality(box, below, CUP, heavier).failure)] == "tips"
+  assert FAILURE_REASONS[int(_suction_quality(box, below, CUP.replace(bellows_stiffness=0.06), heavier).failure)
+                         ] == "none"
+  assert FAILURE_REASONS[int(_suction_quality(box, _suction([0.0, 0.0, 0.02]), CUP,
+                                              c.replace(mass=jnp.float32(0.5))).failure)] == "none"
+
+
 def test_suction_centre_of_top_face_resists_edge_and_hole_do_not(box, box_with_hole):
   c = nominal_conditions(suction_perturbations(), DOWN)
   top = _suction_quality(box, _suction([0.0, 0.0, 0.02]), CUP, c)

@@ -34,7 +34,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from dexjax.grippers import ParallelJawGripper, SuctionGripper
+from dexjax.grippers import BELLOWS_STIFFNESS, ParallelJawGripper, SuctionGripper
 from dexjax.quality.gripper_geometry import GripperGeometry
 
 HAND, TARGET, VACUUM = 'hand', 'tool_target', 'vacuum'
@@ -74,7 +74,9 @@ class ToolSettings:
     sealed_stiffness: bending stiffness of the sealed bellows, N m / rad; default the open bellows' (an estimate:
       under vacuum a bellows cup contracts onto its folds, and stacked folds could bend up to the solid tube's
       ~0.7 N m/rad; with 0.7 the supervisor's level-1 reliability fell from 0.90 to 0.82, neighbours' pushes in
-      the lift reaching the seal, and no maker publishes the figure: docs/benchmark.md).
+      the lift reaching the seal, and no maker publishes the figure: docs/benchmark.md). Both defaults are
+      `dexjax.grippers.BELLOWS_STIFFNESS`, the stiffness of the labels' tipping test
+      (`dexjax.grippers.SuctionGripper.bellows_stiffness`), so labels and judge tip the same objects.
     sealed_armature: rotor inertia added to the bellows' hinges once sealed, kg m² (numerical: MuJoCo integrates
       joint stiffness explicitly, and a stiff sealed hinge of a 20 g lip on a soft vacuum weld would ring at
       omega dt ~ 1 at 2 ms steps; 5e-5 keeps omega dt ~ 0.2 up to 0.7 N m/rad, a few percent of a held object's
@@ -101,8 +103,8 @@ class ToolSettings:
   contact_timeconst: float = 0.005
   bin_friction: float = 0.5
   cup_body_length: float = 0.02
-  bellows_stiffness: float = 0.05
-  sealed_stiffness: float = 0.05
+  bellows_stiffness: float = BELLOWS_STIFFNESS
+  sealed_stiffness: float = BELLOWS_STIFFNESS
   sealed_armature: float = 5e-5
   bellows_damping_ratio: float = 0.3
   bellows_max_angle: float = 0.5

@@ -23,8 +23,8 @@ from dexjax.quality.gripper_geometry import GripperGeometry, jaw_collides
 from dexjax.quality.wrench import wrench_residual
 
 #: Names of the failure codes in `GraspOutcome.failure` (index = code).
-FAILURE_REASONS = ("none", "no_contact", "jaw_collision", "slip", "no_seal", "not_resisted")
-NONE, NO_CONTACT, JAW_COLLISION, SLIP, NO_SEAL, NOT_RESISTED = range(len(FAILURE_REASONS))
+FAILURE_REASONS = ("none", "no_contact", "jaw_collision", "slip", "no_seal", "not_resisted", "tips")
+NONE, NO_CONTACT, JAW_COLLISION, SLIP, NO_SEAL, NOT_RESISTED, TIPS = range(len(FAILURE_REASONS))
 
 
 @struct.dataclass
@@ -124,6 +124,22 @@ def suction_residual(model: ObjectModel, seal: SealResult, gripper: SuctionGripp
   return _residual(wrenches, target, groups, limits, needed)
 
 
+def bellows_margin(model: ObjectModel, seal: SealResult, gripper: SuctionGripper, conditions: Conditions,
+                   config: QualityConfig = QualityConfig()) -> jax.Array:
+  """() metres, >= 0 iff the held object does not tip over on the cup's bellows: k / (m g) - h.
+
+  The bellows bends about a pivot half the cone height behind the lip (``seal.contact - seal.approach *
+  cone_height / 2``; the physics judge's hinge, `dexjax.bench.gripper_bodies`); h = (c - pivot) . (-gravity) is
+  the height of the centre of mass c above it. An object whose centre of mass stands above the pivot is an
+  inverted pendulum on a torsion spring of stiffness k (``gripper.bellows_stiffness``), statically stable iff
+  k > m g h; h <= 0 (hanging, or the centre of mass level with the pivot) always passes (the lip's torque limits
+  are the wrench test's). Mass m and gravity come from ``conditions``."""
+  pivot = seal.contact - seal.approach * (0.5 * gripper.cone_height)
+  height = jnp.dot(model.center_of_mass - pivot, -conditions.gravity)
+  weight = conditions.mass * config.gravity_acceleration
+  return gripper.bellows_stiffness / jnp.maximum(weight, 1e-12) - height
+
+
 def _passes(checks) -> jax.Array:
   """() bool: none of the ordered (failed, code) checks failed (the wrench test decides)."""
   return ~jnp.any(jnp.stack([failed for failed, _ in checks]))
@@ -170,10 +186,13 @@ def suction_quality(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGri
   """Seal and suction-ring wrench resistance of a suction grasp (object frame).
 
   Fails with ``no_contact`` when the approach ray misses the object near the grasp centre (or something is in
-  the way), ``no_seal`` when the spring model does not seal, and ``not_resisted`` when no admissible lip
-  forces and torques (vacuum, friction, torsional friction, elastic limit) balance the external wrench.
+  the way), ``no_seal`` when the spring model does not seal, ``tips`` when the object's centre of mass stands so
+  high above the bellows that it tips over on them (`bellows_margin`; not in Dex-Net 3.0's model, whose cup is
+  rigid behind the lip), and ``not_resisted`` when no admissible lip forces and torques (vacuum, friction,
+  torsional friction, elastic limit) balance the external wrench.
   """
   seal = suction_seal(model, grasp, gripper)
-  checks = [(~seal.contact_found, NO_CONTACT), (~seal.sealed, NO_SEAL)]
+  checks = [(~seal.contact_found, NO_CONTACT), (~seal.sealed, NO_SEAL),
+            (bellows_margin(model, seal, gripper, conditions, config) < 0, TIPS)]
   residual = suction_residual(model, seal, gripper, conditions, config, needed=_passes(checks))
   return _outcome(residual, checks, config)

@@ -39,7 +39,8 @@ from dexjax.geometry.object_model import ObjectModel
 from dexjax.geometry.sdf import sdf_value
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
-from dexjax.quality.grasp_quality import Conditions, QualityConfig, parallel_jaw_residual, suction_residual
+from dexjax.quality.grasp_quality import (Conditions, QualityConfig, bellows_margin, parallel_jaw_residual,
+                                          suction_residual)
 from dexjax.quality.gripper_geometry import jaw_clearance
 from dexjax.quality.robust import (Perturbations, map_draws, parallel_jaw_perturbations, robust_jaw_samples,
                                    suction_perturbations)
@@ -105,6 +106,8 @@ class SuctionMargins:
     holes: () `SealResult.hole_margin`, metres (no hole under the cup).
     strain: () the gripper's strain limit minus the largest spring strain (0 where a lip ray misses: the lip
       margin decides).
+    bellows: () `dexjax.quality.grasp_quality.bellows_margin`, metres (the object does not tip over on the
+      bellows).
     residual: () wrench residual, newtons (`dexjax.quality.wrench`).
     tolerance: () the residual's tolerance, newtons.
   """
@@ -113,10 +116,11 @@ class SuctionMargins:
   lip: jax.Array
   holes: jax.Array
   strain: jax.Array
+  bellows: jax.Array
   residual: jax.Array
   tolerance: jax.Array
 
-  UNITS = (('contact', LENGTH), ('lip', LENGTH), ('holes', LENGTH), ('strain', RATIO))
+  UNITS = (('contact', LENGTH), ('lip', LENGTH), ('holes', LENGTH), ('strain', RATIO), ('bellows', LENGTH))
 
 
 def soft_step(margin: jax.Array, scale: jax.Array) -> jax.Array:
@@ -180,7 +184,7 @@ def suction_margins(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGri
   # Where a lip ray misses there are no spring lengths: the strain test is left to the lip margin (0 here).
   strain = jnp.where(seal.lip_hits, gripper.max_strain - seal.max_strain, 0.0)
   return SuctionMargins(contact=seal.contact_margin, lip=seal.lip_margin, holes=seal.hole_margin, strain=strain,
-                        residual=residual,
+                        bellows=bellows_margin(model, seal, gripper, conditions, config), residual=residual,
                         tolerance=jnp.asarray(config.tolerance, jnp.float32))
 
 
