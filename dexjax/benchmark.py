@@ -7,7 +7,7 @@
       [--push] [--workers N | --ray [--ray-address ADDR]] [--cache-dir DIR] [--no-figures] [--json]
 
 Each trial fills the bin with ``--per-trial`` objects of the set (dropped and settled in MuJoCo), then each policy
-looks (a depth image from the run's camera, with 1 mm sensor noise and 1 % dropped pixels unless ``--no-noise``),
+looks (a depth image from the run's camera, with 0.5 mm sensor noise and 1 % dropped pixels unless ``--no-noise``),
 plans, and its grasp is judged twice: by the analytic reward of the training labels and by executing it in MuJoCo
 (the labels' collision rule, then grip, lift 0.2 m, transport to a receptacle beside the bin, release; ``--shake``
 adds a shake before the release, ``--push`` lets the gripper push objects aside instead of the collision rule).
@@ -57,7 +57,7 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--config', help='generation config: bin, settling, camera, noise, grippers, reward '
                                   '(layout: configs/dexnet4.yaml; default: Dex-Net 4.0 values)')
   p.add_argument('--camera-config', help='camera file (as python -m dexjax.generate)')
-  p.add_argument('--no-noise', action='store_true', help='noise-free depth images (default: 1 mm correlated noise '
+  p.add_argument('--no-noise', action='store_true', help='noise-free depth images (default: 0.5 mm correlated noise '
                                                          'and 1 %% dropped pixels unless --config sets noise)')
   p.add_argument('--known-mass', action='store_true',
                  help="the analytic judge uses each object's simulated mass instead of the reward's Gamma draws")
