@@ -41,8 +41,8 @@ from dexjax.objects.procedural_shapes import log_uniform
 from dexjax.objects.procedural_shapes import polygon
 from dexjax.objects.procedural_shapes import rounded_box
 
-__all__ = ['LEVEL1_EXTENT_RANGE', 'LEVEL1_MIN_THICKNESS', 'LEVEL1_MIN_ROUND_DIAMETER', 'LEVEL1_JAW_WIDTH', 'LEVEL1_JAW_FRACTION',
-           'LEVEL1_FAMILIES', 'prism_outline']
+__all__ = ['LEVEL1_EXTENT_RANGE', 'LEVEL1_MIN_THICKNESS', 'LEVEL1_MIN_ROUND_DIAMETER', 'LEVEL1_JAW_WIDTH',
+           'LEVEL1_JAW_FRACTION', 'LEVEL1_FAMILIES', 'prism_outline']
 
 LEVEL1_EXTENT_RANGE: tuple[float, float] = (0.06, 0.14)
 """Range of a level-1 object's largest extent, metres (drawn log-uniformly)."""
