@@ -68,12 +68,12 @@ def test_dexnet4_yaml_spells_out_the_defaults():
 
 
 def test_fingerprints_are_known_answers():
-  """Known answers: the fingerprints of the defaults and SMALL with labels version 4 (2026-12-06: the heap reward's
-  refined jaw collision test; every dataset of an older labels version gets a new fingerprint, so none is resumed
-  with the new labels). The speed-only settling fields never change a fingerprint, and sleeping objects do."""
+  """Known answers: the fingerprints of the defaults and SMALL with labels version 5 (2026-12-06: the suction
+  reward's bellows tipping test and the cup's ``bellows_stiffness``; every dataset of an older labels version gets
+  a new fingerprint, so none is resumed with the new labels). The speed-only settling fields never change a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == '5499b5566f9f9c47'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '44f666f33b2c392e'
+  assert fingerprint(awake(GenerateConfig())) == '285f2d43c6453e8c'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'ab0ccc3b31b9e029'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))
