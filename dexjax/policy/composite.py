@@ -22,6 +22,7 @@ from flax import struct
 
 from dexjax.policy.heuristics import composite_heuristic_choice
 from dexjax.policy.actions import GraspAction, best_action, pad_samples, select_action, stack_actions
+from dexjax.policy.instances import depth_instances
 from dexjax.policy.observation import Observation
 from dexjax.policy.scorers import GRIPPERS
 
@@ -135,11 +136,24 @@ def random_composite_policy(key: jax.Array, observation: Observation, policy: Ra
   return _finish(select_action(actions, index), names, actions, samples)
 
 
+def _shared_instances(observation: Observation, policy: HeuristicComposite) -> HeuristicComposite:
+  """``policy`` whose two scorers share one depth-instance segmentation of ``observation`` (each would segment it
+  again), when both segment it with the same jump and neither has its own labels."""
+  suction, jaws = policy.suction.scorer, policy.parallel_jaw.scorer
+  if suction.labels is not None or jaws.labels is not None or suction.instance_jump is None or (
+      suction.instance_jump != jaws.instance_jump):
+    return policy
+  labels = depth_instances(observation.depth, observation.mask, suction.instance_jump)
+  return policy.replace(suction=policy.suction.replace(scorer=suction.replace(labels=labels)),
+                        parallel_jaw=policy.parallel_jaw.replace(scorer=jaws.replace(labels=labels)))
+
+
 def heuristic_composite_policy(key: jax.Array, observation: Observation, policy: HeuristicComposite,
                                samples: bool = False) -> GraspAction:
   """The Composite Heuristic's action: the gripper by `composite_heuristic_choice` on the two rankings' best
   scores (0 where a ranking found no valid candidate), and that ranking's best grasp."""
   _check_grippers(policy.policies)
+  policy = _shared_instances(observation, policy)
   names, actions = _plan_all(key, observation, policy.policies, samples)
   best = {name: jnp.where(a.valid, a.probability, 0.0) for name, a in zip(names, actions)}
   index = composite_heuristic_choice(best[GRIPPERS[1]], best[GRIPPERS[0]], policy.suction_threshold)
