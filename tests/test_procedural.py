@@ -37,6 +37,7 @@ from dexjax.objects.procedural_shapes import SIZE_RANGE
 from dexjax.objects.procedural_shapes import box
 from dexjax.objects.procedural_solids import LEVEL1_EXTENT_RANGE
 from dexjax.objects.procedural_solids import LEVEL1_JAW_WIDTH
+from dexjax.objects.procedural_solids import LEVEL1_MIN_FACE
 from dexjax.objects.procedural_solids import LEVEL1_MIN_ROUND_DIAMETER
 from dexjax.objects.procedural_solids import LEVEL1_MIN_THICKNESS
 from dexjax.sim import heap_object
@@ -248,6 +249,40 @@ def test_level1_objects_are_household_boxes_and_cylinders():
   # Most fit between the 5 cm jaws across their width (the second-largest extent); balls and a fifth of the
   # others (flat boxes, tuna cans) do not.
   assert 0.65 < np.mean(np.asarray(widths) <= LEVEL1_JAW_WIDTH + 1e-9) < 0.85
+
+
+def _facet_widths(mesh, min_area=2e-5):
+  """Narrower in-plane side (metres) of the largest planar facet of ``mesh`` facing each distinct direction, over
+  the facets above ``min_area`` m^2 (the bevels of a rounded box's edges are many strips facing other ways)."""
+  best = {}
+  for facet, normal, area in zip(mesh.facets, mesh.facets_normal, mesh.facets_area):
+    if area < min_area:
+      continue
+    points = mesh.vertices[np.unique(mesh.faces[facet])]
+    points = points - points.mean(axis=0)
+    in_plane = points - np.outer(points @ normal, normal)
+    axes = np.linalg.svd(in_plane, full_matrices=False)[2][:2]  # the facet's in-plane principal axes
+    key = tuple(np.round(normal, 2))
+    if area > best.get(key, (0.0, 0.0))[0]:
+      best[key] = (area, float(np.min(np.ptp(in_plane @ axes.T, axis=0))))
+  return [width for _, width in best.values()]
+
+
+def test_level1_flat_faces_are_wider_than_the_cup():
+  """Rounded boxes keep a flat of >= 2 cm on every face; prisms have 4 or 6 faces around, each >= 2 cm wide (an
+  odd prism lying on a face shows the cup a ridge)."""
+  families = procedural_families(1)
+  for index in range(120):
+    name = families[index % 6]
+    if name not in ('rounded_box', 'prism'):
+      continue
+    mesh = procedural_mesh(1, index)
+    widths = _facet_widths(mesh)
+    if name == 'prism':
+      assert len(widths) in (6, 8), (index, len(widths))  # two caps and 4 or 6 sides
+    flats = sorted(widths)[-6:] if name == 'rounded_box' else widths  # the six flats, wider than the bevels
+    assert min(flats) >= LEVEL1_MIN_FACE - 1e-4, (index, name, widths)
+  assert LEVEL1_MIN_FACE == 0.02
 
 
 @pytest.mark.parametrize('level', LEVELS)

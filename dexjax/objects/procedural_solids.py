@@ -13,8 +13,10 @@ tuna can: the cup's). Balls are at least 6 cm across, wider than the jaws open. 
 
 * ``box``: a box (packaged goods: cracker, sugar, gelatin boxes);
 * ``cylinder``: a cylinder, tall (soup, coffee cans, jars) or squat (a tuna can);
-* ``rounded_box``: a box with rounded edges (soap bars, erasers, sponges);
-* ``prism``: an irregular convex n-gonal prism, n = 3-8 (toy blocks);
+* ``rounded_box``: a box with rounded edges (soap bars, erasers, sponges), every face's flat at least
+  `LEVEL1_MIN_FACE` (0.02 m, the cup) across;
+* ``prism``: an irregular convex quadrilateral or hexagonal prism (toy blocks), every face at least
+  `LEVEL1_MIN_FACE` wide (a lying odd prism shows the cup a ridge);
 * ``frustum``: a truncated cone, the top 0.5-0.85 of the base across (tubs, cups, cone toys);
 * ``ball``: a sphere or an ellipsoid with axis ratios >= 0.75 (sports and toy balls).
 
@@ -41,7 +43,7 @@ from dexjax.objects.procedural_shapes import log_uniform
 from dexjax.objects.procedural_shapes import polygon
 from dexjax.objects.procedural_shapes import rounded_box
 
-__all__ = ['LEVEL1_EXTENT_RANGE', 'LEVEL1_MIN_THICKNESS', 'LEVEL1_MIN_ROUND_DIAMETER', 'LEVEL1_JAW_WIDTH',
+__all__ = ['LEVEL1_EXTENT_RANGE', 'LEVEL1_MIN_THICKNESS', 'LEVEL1_MIN_ROUND_DIAMETER', 'LEVEL1_MIN_FACE', 'LEVEL1_JAW_WIDTH',
            'LEVEL1_JAW_FRACTION', 'LEVEL1_FAMILIES', 'prism_outline']
 
 LEVEL1_EXTENT_RANGE: tuple[float, float] = (0.06, 0.14)
@@ -55,6 +57,11 @@ LEVEL1_MIN_ROUND_DIAMETER: float = 0.04
 the side of a thinner one lying down: on Dex-Net 3.0's seal model (`dexjax.contacts.suction_seal`, 10 % strain)
 the cup vertical on the top line of a lying cylinder strains 0.104 at 3 cm across, 0.070 at 4 cm and 0.054 at
 5 cm (measured 2026-12-06); a cup-only policy could never pick a thinner can lying down."""
+
+LEVEL1_MIN_FACE: float = 0.02
+"""Narrowest flat face of a level-1 box, rounded box or prism, metres: the seed's 20 mm cup across. On Dex-Net
+3.0's seal model (10 % strain) the cup vertical on a 3 cm rounded box, 2 mm off the face's centre, strains 0.01
+with a 2.2 cm flat, 0.08 with 1.4 cm and 0.19 with 0.3 cm (radius 13.5 mm; measured 2026-12-06)."""
 
 LEVEL1_JAW_WIDTH: float = 0.045
 """Widest dimension across a jaw-friendly level-1 object, metres (the seed's 5 cm jaw opening less 5 mm)."""
@@ -96,7 +103,9 @@ def _build_box(p: Params) -> Manifold:
 
 def _draw_rounded_box(rng: np.random.Generator) -> Params:
   params = _draw_box(rng)
-  params['radius'] = float(rng.uniform(0.1, 0.45) * params['size'].min())
+  # Every face keeps a flat of at least LEVEL1_MIN_FACE: the radius is at most half the shortest side's excess.
+  thinnest = float(params['size'].min()) * params['extent']
+  params['radius'] = float(rng.uniform(0.2, 1.0) * 0.5 * (thinnest - LEVEL1_MIN_FACE)) / params['extent']
   return params
 
 
@@ -152,19 +161,28 @@ def _min_width(points: np.ndarray) -> float:
   return float(np.min(np.ptp(points @ normals.T, axis=0)))
 
 
+def _min_edge(points: np.ndarray) -> float:
+  """Shortest edge of the polygon with (N, 2) vertices ``points`` in order."""
+  return float(np.min(np.linalg.norm(np.roll(points, -1, axis=0) - points, axis=1)))
+
+
 def _draw_prism(rng: np.random.Generator) -> Params:
-  # Four to eight sides: a triangle lying on a face shows the camera a ridge, no face the cup can seal on from
-  # above, and two faces 60 degrees apart the jaws hold only near the ridge (Omega found 13 jaw grasps of 400
-  # and the supervisor none in the bin, in any of 5 trials).
-  sides, irregularity = int(rng.integers(4, 9)), rng.uniform(-0.15, 0.15, 8)
-  ratio = _min_width(prism_outline(sides, irregularity))  # The polygon's thinnest width / its box's larger side.
+  # Four or six sides, every face at least LEVEL1_MIN_FACE wide: lying on a face, an even prism shows the camera
+  # the opposite face, an odd one a ridge (a lying pentagon strains the cup 0.18 at its top, a heptagon 0.13; the
+  # limit is 0.10), and a face narrower than the cup breaks its seal (a hexagon 3.8 cm across its corners, faces
+  # 1.9 cm: 0.20 at 2 mm off the face's centre). A triangle offers the jaws two faces 60 degrees apart (Omega
+  # found 13 jaw grasps of 400 and the supervisor none in the bin, in any of 5 trials). Hexagons (faces ~0.5 x
+  # the polygon's larger side) are wider than the jaws open, so a jaw-friendly prism has four sides.
   extent, width, jaws = _extent_and_width(rng)
-  narrowest = LEVEL1_MIN_THICKNESS / ratio  # The polygon must be >= the minimum thickness across.
+  sides, irregularity = (4 if jaws or rng.random() < 0.5 else 6), rng.uniform(-0.15, 0.15, 8)
+  outline = prism_outline(sides, irregularity)
+  # The polygon's larger side must give it the minimum thickness across and its faces the minimum face width.
+  narrowest = max(LEVEL1_MIN_THICKNESS / _min_width(outline), LEVEL1_MIN_FACE / _min_edge(outline))
   if jaws:  # A tall prism whose polygon fits the jaws: ``width`` rescaled from [0.03, 0.045] to [narrowest, 0.045].
     share = (width - LEVEL1_MIN_THICKNESS) / (LEVEL1_JAW_WIDTH - LEVEL1_MIN_THICKNESS)
     width, height = min(narrowest + share * max(0.0, LEVEL1_JAW_WIDTH - narrowest), extent), extent
   elif rng.random() < 0.5:  # The polygon spans the extent; the height is the other dimension.
-    width, height = extent, width
+    width, height = max(extent, narrowest), width
   else:  # A tall prism with a wide polygon.
     width, height = _side(rng, extent, min(extent, narrowest)), extent
   return {'extent': extent, 'sides': sides, 'irregularity': irregularity, 'width': width / extent,
