@@ -69,11 +69,13 @@ def test_dexnet4_yaml_spells_out_the_defaults():
 
 def test_fingerprints_are_known_answers():
   """Known answers: the fingerprints of the defaults and SMALL with labels version 5 (2026-12-06: the suction
-  reward's bellows tipping test and the cup's ``bellows_stiffness``; every dataset of an older labels version gets
-  a new fingerprint, so none is resumed with the new labels). The speed-only settling fields never change a fingerprint, and sleeping objects do."""
+  reward's bellows tipping test and the cup's ``bellows_stiffness``) and procedural objects version 4 (2026-12-06:
+  level-1 flat faces at least the cup's width); every dataset of an older labels or objects version gets a new
+  fingerprint, so none is resumed with other labels or other meshes. The speed-only settling fields never change
+  a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == '285f2d43c6453e8c'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'ab0ccc3b31b9e029'
+  assert fingerprint(awake(GenerateConfig())) == '064ecba965e67f25'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '1227496361d42e78'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))
@@ -416,15 +418,16 @@ def test_generated_shards_train_both_gqcnns_and_score_every_row(run, tmp_path):
 
 
 def test_labels_match_the_recorded_rows(run):
-  """The small run's rows equal (bit for bit but for float32 geometry, below) those dexjax b5f2867 made for the
+  """The small run's rows equal (bit for bit but for float32 geometry, below) those dexjax fd3cb0a made for the
   same config and seed. The reference was recorded first before the throughput work of issue 18 (dexjax 07484d8,
   which these rows matched until then), again at f658897, when issue 42 changed what a run makes: level-1
   objects of household size with masses from their materials (SMALL uses procedural:L1/0:3) and labels version 4
-  (the refined jaw collision test), and at b5f2867, when level-1 cylinders became at least 4 cm across
-  (procedural:L1/1 is one). SMALL keeps ``settle.sleep`` off.
+  (the refined jaw collision test), at b5f2867, when level-1 cylinders became at least 4 cm across
+  (procedural:L1/1 is one), and at fd3cb0a, when level-1 flat faces became at least the cup's 2 cm wide
+  (procedural:L1/2 is a rounded box). SMALL keeps ``settle.sleep`` off.
   Recorded with ``scripts/record_generate_reference.py``; a render backend other than the recording's draws other
   depth images, so the comparison then needs that backend."""
-  reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_b5f2867.npz')
+  reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_fd3cb0a.npz')
   config, out, _, _ = run
   shards = [read_shard(shard_path(out, i)) for i in range(num_shards(config, NUM_IMAGES))]
   from dexjax.render import DepthRenderer

@@ -24,6 +24,7 @@ from dexjax.data.shards import FORMAT_VERSION, config_fingerprint
 from dexjax.generate.labels import LABEL_VERSION
 from dexjax.generate.policy import PolicyParams
 from dexjax.generate.supervisor import SupervisorParams
+from dexjax.objects.procedural import PROCEDURAL_VERSION
 from dexjax.quality.heap_reward import RewardParams
 from dexjax.quality.report import ReportSettings, settings_from_config
 from dexjax.render.distribution import CameraDistribution
@@ -270,8 +271,10 @@ def content_fields(record: Mapping[str, Any]) -> dict[str, Any]:
 
 def fingerprint(config: GenerateConfig) -> str:
   """`dexjax.data.config_fingerprint` of everything that determines a shard's content (`content_fields`: not the
-  seed), the shard format and the labelling version (`dexjax.generate.labels.LABEL_VERSION`)."""
+  seed), the shard format, the labelling version (`dexjax.generate.labels.LABEL_VERSION`) and the procedural
+  objects' (`dexjax.objects.PROCEDURAL_VERSION`: a spec such as ``procedural:L1/0:3`` names other meshes when it
+  changes)."""
   data = content_fields(as_dict(config))
-  data['versions'] = {'shard_format': FORMAT_VERSION, 'labels': LABEL_VERSION}
+  data['versions'] = {'shard_format': FORMAT_VERSION, 'labels': LABEL_VERSION, 'procedural': PROCEDURAL_VERSION}
   return config_fingerprint(data)
 

@@ -14,6 +14,7 @@ from dexjax.objects.procedural import MAX_MASS
 from dexjax.objects.procedural import MIN_MASS
 from dexjax.objects.procedural import MIN_EXTENT
 from dexjax.objects.procedural import PROCEDURAL_LEVELS
+from dexjax.objects.procedural import PROCEDURAL_VERSION
 from dexjax.objects.procedural import PROCEDURAL_PREFIX
 from dexjax.objects.procedural import parse_procedural_spec
 from dexjax.objects.procedural import procedural_families
@@ -41,7 +42,7 @@ from dexjax.objects.sets import prepare_object_set
 
 __all__ = [
     "BUILTIN_OBJECTS", "BUILTIN_PREFIX", "builtin_mesh", "load_object_model", "resolve_mesh",
-    "MAX_EXTENT", "MAX_FACES", "MAX_MASS", "MIN_EXTENT", "MIN_MASS", "PROCEDURAL_LEVELS", "PROCEDURAL_PREFIX",
+    "MAX_EXTENT", "MAX_FACES", "MAX_MASS", "MIN_EXTENT", "MIN_MASS", "PROCEDURAL_LEVELS", "PROCEDURAL_PREFIX", "PROCEDURAL_VERSION",
     "parse_procedural_spec", "procedural_families", "procedural_material", "procedural_mesh",
     "procedural_mesh_problems", "procedural_params", "procedural_spec", "procedural_specs", "Material",
     "CONVEX_SOLIDITY", "HullSettings", "cached_collision_hulls", "collision_hulls", "hulls_cache_key",

@@ -49,7 +49,7 @@ from dexjax.objects.procedural_solids import LEVEL1_FAMILIES
 from dexjax.objects.procedural_solids import LEVEL1_MIN_THICKNESS
 
 __all__ = [
-    'PROCEDURAL_PREFIX', 'PROCEDURAL_LEVELS', 'MIN_EXTENT', 'MAX_EXTENT', 'MAX_FACES', 'MAX_MASS', 'MIN_MASS',
+    'PROCEDURAL_PREFIX', 'PROCEDURAL_LEVELS', 'PROCEDURAL_VERSION', 'MIN_EXTENT', 'MAX_EXTENT', 'MAX_FACES', 'MAX_MASS', 'MIN_MASS',
     'procedural_families', 'procedural_material', 'procedural_params', 'procedural_mesh', 'procedural_spec',
     'procedural_specs', 'parse_procedural_spec', 'procedural_spec_mesh', 'procedural_mesh_problems',
 ]
@@ -59,6 +59,12 @@ PROCEDURAL_PREFIX: str = 'procedural:'
 
 PROCEDURAL_LEVELS: tuple[int, ...] = (1, 2, 3)
 """The difficulty levels."""
+
+PROCEDURAL_VERSION: int = 4
+"""Version of the procedural object sets: a spec names another object when this changes, so a dataset's
+fingerprint (`dexjax.generate.fingerprint`) includes it and no run resumes with other objects. 2: level 1 of
+household size with masses from materials (2026-12-05); 3: level-1 round solids >= 4 cm across (2026-12-06);
+4: level-1 flat faces >= the cup (rounded boxes' flats, prisms of 4 or 6 faces; 2026-12-06)."""
 
 MIN_EXTENT: float = SIZE_RANGE[0]
 """Smallest allowed largest extent of a procedural object, metres (0.06)."""
