@@ -23,7 +23,6 @@ from __future__ import annotations
 import contextlib
 import errno
 import functools
-import json
 import os
 import secrets
 import struct
@@ -212,8 +211,8 @@ def owned_json(*keys: str) -> Callable[[Path], bool]:
   """Recognises a JSON file this command wrote: an object holding every one of ``keys``."""
 
   def owned(path: Path) -> bool:
-    with open(path, encoding='utf-8') as f:
-      data = json.load(f)
+    from dexjax.config import parse_json  # pylint: disable=g-import-not-at-top (refuses hostile nesting)
+    data = parse_json(path.read_text(encoding='utf-8'), os.fspath(path))
     return isinstance(data, dict) and all(k in data for k in keys)
 
   return owned

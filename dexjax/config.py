@@ -9,13 +9,22 @@ naming the file, the dotted field path and what was expected. Range checks (e.g.
 caller's, through ``minimum``; rules that tie fields together (``min_width <= max_width``, a friction range
 with ``low <= high``, ``min_count <= max_count``) are checked by `check_fields` tables: `validate_perturbations`,
 `validate_heap_distribution` and `validate_generate_config` here, ``validate`` of the grippers.
+
+Every structured file dexjax reads (configs, grasp files, camera and intrinsics files, run records) is parsed by
+`parse_yaml` or `parse_json`, which refuse hostile input with a one-line `ConfigError` naming the file, the line
+and column and what was expected, before any code recurses through the data: lists or mappings nested deeper
+than `MAX_NESTING` levels, YAML aliases that expand past `MAX_YAML_NODES` values or contain themselves, and
+duplicate keys in a YAML mapping (which would otherwise silently keep the last value).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import json
 import math
 import os
+import re
 from typing import Any, Mapping
 
 import yaml
@@ -30,23 +39,216 @@ class ConfigError(ValueError):
     super().__init__(f"{where}: {problem}")
 
 
+#: Deepest nesting of lists and mappings accepted in a structured input file (dexjax's own files nest at most
+#: 5 levels); deeper input is refused before anything recurses through it (Python's recursion limit is ~1000).
+MAX_NESTING = 32
+
+#: Most values (scalars, lists and mappings) a YAML file may expand to through its aliases: a few lines of
+#: nested aliases ("billion laughs") would otherwise expand to billions.
+MAX_YAML_NODES = 1_000_000
+
+_TOO_DEEP = f"lists or mappings nested deeper than {MAX_NESTING} levels; expected at most {MAX_NESTING} levels deep"
+
+
+class _RefusedYAML(yaml.MarkedYAMLError):
+  """Well-formed YAML that dexjax refuses (duplicate key, too deep, too large, recursive)."""
+
+
+class StrictLoader(yaml.SafeLoader):  # pylint: disable=too-many-ancestors
+  """`yaml.SafeLoader` that refuses duplicate mapping keys, nesting deeper than `MAX_NESTING`, aliases that
+  refer to a node containing them, and documents expanding past `MAX_YAML_NODES` values."""
+
+  def __init__(self, stream: Any):
+    super().__init__(stream)
+    self._open_anchors: list[str | None] = []  # anchors of the collections being composed, outermost first
+    self._sizes: dict[int, int] = {}  # id(node) -> values it expands to (aliases counted in full)
+
+  def compose_node(self, parent: Any, index: Any) -> Any:
+    """Composes one node, checking depth, recursive aliases and the expanded size before recursing."""
+    event = self.peek_event()
+    if isinstance(event, yaml.AliasEvent) and event.anchor in self._open_anchors:
+      raise _RefusedYAML(None, None, f"the alias *{event.anchor} refers to a list or mapping that contains it; "
+                                     "expected no recursive structure", event.start_mark)
+    if not isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+      node = super().compose_node(parent, index)
+      self._sizes.setdefault(id(node), 1)
+      return node
+    if len(self._open_anchors) >= MAX_NESTING:
+      raise _RefusedYAML(None, None, _TOO_DEEP, event.start_mark)
+    self._open_anchors.append(event.anchor)
+    try:
+      node = super().compose_node(parent, index)
+    finally:
+      self._open_anchors.pop()
+    self._count(node, event.start_mark)
+    return node
+
+  def _count(self, node: Any, mark: Any) -> None:
+    """Records the number of values ``node`` expands to; raises `_RefusedYAML` past `MAX_YAML_NODES`."""
+    children = itertools.chain.from_iterable(node.value) if isinstance(node, yaml.MappingNode) else node.value
+    size = 1 + sum(self._sizes.get(id(child), 1) for child in children)
+    if size > MAX_YAML_NODES:
+      raise _RefusedYAML(None, None, f"expands to more than {MAX_YAML_NODES:,} values through aliases; expected "
+                                     "a small file", mark)
+    self._sizes[id(node)] = size
+
+  def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
+    """The mapping of ``node``; raises `_RefusedYAML` naming a key given twice (merge keys ``<<`` may be
+    overridden, as YAML intends)."""
+    if isinstance(node, yaml.MappingNode):
+      first: dict[Any, Any] = {}
+      for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+          continue
+        key = self.construct_object(key_node, deep=True)
+        try:
+          earlier = first.setdefault(key, key_node.start_mark)
+        except TypeError:
+          continue  # an unhashable key: SafeLoader reports it
+        if earlier is not key_node.start_mark:
+          raise _RefusedYAML(None, None, f"duplicate key {key!r} (first at line {earlier.line + 1}); expected each "
+                                         "key once per mapping", key_node.start_mark)
+    return super().construct_mapping(node, deep=deep)
+
+
+def _at(mark: Any) -> str:
+  """'line L, column C' of a PyYAML mark (1-based)."""
+  return f"line {mark.line + 1}, column {mark.column + 1}"
+
+
+def _expecting(expected: str | None) -> str:
+  """'; expected <expected>', or '' for None."""
+  return f"; expected {expected}" if expected else ""
+
+
+def _yaml_error(error: yaml.YAMLError, source: str, expected: str | None) -> ConfigError:
+  """A one-line `ConfigError` for a PyYAML error: the file, the line and column, the problem and its context."""
+  if isinstance(error, yaml.reader.ReaderError):
+    code = error.character if isinstance(error.character, int) else ord(error.character)
+    problem = f"not valid YAML: unacceptable character #x{code:04x} ({error.reason}){_expecting(expected)}"
+    return ConfigError(source, f"character {error.position + 1}", problem)
+  if not isinstance(error, yaml.MarkedYAMLError):
+    return ConfigError(source, "", f"not valid YAML: {' '.join(str(error).split())}{_expecting(expected)}")
+  mark = error.problem_mark or error.context_mark
+  problem = " ".join(str(error.problem or error.context).split())
+  if error.context and error.problem and error.context_mark is not None:
+    problem += f" ({error.context} at {_at(error.context_mark)})"
+  if not isinstance(error, _RefusedYAML):
+    problem = f"not valid YAML: {problem}{_expecting(expected)}"
+  return ConfigError(source, _at(mark) if mark is not None else "", problem)
+
+
+def _too_deep(source: str, where: str = "") -> ConfigError:
+  """The `ConfigError` of input nested deeper than `MAX_NESTING`."""
+  return ConfigError(source, where, _TOO_DEEP)
+
+
+def parse_yaml_documents(text: str, source: str, *, expected: str | None = "a YAML mapping") -> list[Any]:
+  """Every document of the YAML ``text`` (from the file ``source``), read with `StrictLoader`.
+
+  Raises:
+    ConfigError: one line naming ``source``, the line and column, the problem and ``expected`` (None: the
+      caller says what it expected): malformed YAML, a duplicate key, nesting deeper than `MAX_NESTING`, an
+      alias inside its own anchor, aliases expanding past `MAX_YAML_NODES` values.
+  """
+  try:
+    return list(yaml.load_all(text, Loader=StrictLoader))  # nosec B506: StrictLoader is a SafeLoader
+  except yaml.YAMLError as e:
+    raise _yaml_error(e, source, expected) from None
+  except RecursionError:
+    raise _too_deep(source) from None
+
+
+def parse_yaml(text: str, source: str, *, expected: str | None = "a YAML mapping") -> Any:
+  """The single document of the YAML ``text`` (None if empty); errors as `parse_yaml_documents`."""
+  documents = parse_yaml_documents(text, source, expected=expected)
+  if len(documents) > 1:
+    raise ConfigError(source, "", f"holds {len(documents)} YAML documents (separated by '---'); expected one"
+                                  f"{', ' + expected if expected else ''}")
+  return documents[0] if documents else None
+
+
+_JSON_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')
+_JSON_TOKEN = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"|[\[\]{}]')
+_NOT_BRACKET = re.compile(r"[^\[\]{}]+")
+_BRACKET_STEP = {"[": 1, "{": 1, "]": -1, "}": -1}
+
+
+def _json_too_deep(text: str) -> int | None:
+  """Offset in the JSON ``text`` of the first bracket nested deeper than `MAX_NESTING` (brackets in strings
+  do not count), or None. A quick count in C first; the position is only searched for in deep text."""
+  brackets = _NOT_BRACKET.sub("", _JSON_STRING.sub("", text))
+  if max(itertools.accumulate(map(_BRACKET_STEP.__getitem__, brackets)), default=0) <= MAX_NESTING:
+    return None
+  depth = 0
+  for token in _JSON_TOKEN.finditer(text):
+    depth += _BRACKET_STEP.get(token.group(), 0)
+    if depth > MAX_NESTING:
+      return token.start()
+  return None
+
+
+def parse_json(text: str, source: str, *, expected: str | None = "a JSON object") -> Any:
+  """The decoded JSON ``text`` (from the file ``source``), its nesting checked before decoding.
+
+  Raises:
+    ConfigError: one line naming ``source``, the line and column, the problem and ``expected`` (None: the
+      caller says what it expected): malformed JSON or nesting deeper than `MAX_NESTING`.
+  """
+  offset = _json_too_deep(text)
+  if offset is not None:
+    line, column = text.count("\n", 0, offset) + 1, offset - text.rfind("\n", 0, offset)
+    raise _too_deep(source, f"line {line}, column {column}")
+  try:
+    return json.loads(text)
+  except json.JSONDecodeError as e:
+    raise ConfigError(source, f"line {e.lineno}, column {e.colno}",
+                      f"not valid JSON: {e.msg}{_expecting(expected)}") from None
+  except RecursionError:
+    raise _too_deep(source) from None
+
+
 def load_yaml(path: str | os.PathLike[str]) -> dict[str, Any]:
-  """Reads a YAML mapping from ``path`` (an empty file is an empty mapping)."""
+  """Reads a YAML mapping from ``path`` (an empty file is an empty mapping) with `parse_yaml`.
+
+  Raises:
+    ConfigError: the file cannot be read, is not UTF-8 text, is not a YAML mapping or is refused by
+      `parse_yaml` (naming the file, and the line and column where known).
+  """
   path = os.fspath(path)
   try:
     with open(path, encoding="utf-8") as f:
-      data = yaml.safe_load(f)
+      text = f.read()
   except OSError as e:
     raise ConfigError(path, "", f"cannot read the file ({e.strerror})") from None
   except UnicodeDecodeError as e:
     raise ConfigError(path, "", f"not a text file (byte {e.start} is not UTF-8); expected a YAML mapping") from None
-  except yaml.YAMLError as e:
-    raise ConfigError(path, "", f"not valid YAML ({e})") from None
+  data = parse_yaml(text, path, expected="a YAML mapping of config sections")
   if data is None:
     return {}
   if not isinstance(data, dict):
     raise ConfigError(path, "", f"expected a mapping of sections at the top level, got {type(data).__name__}")
   return data
+
+
+def number_hint(value: Any) -> str:
+  """A hint for a number YAML 1.1 reads as a string (``1e9``: without a decimal point or an exponent sign): how
+  to write it so that it is a number (`` (YAML 1.1 reads 1e9 as a string; write 1.0e+9)``); '' for any other
+  value."""
+  if not isinstance(value, str) or "e" not in value.lower():
+    return ""
+  try:
+    if not math.isfinite(float(value)):
+      return ""
+  except ValueError:
+    return ""
+  mantissa, _, exponent = value.strip().lower().partition("e")
+  mantissa = mantissa if "." in mantissa else f"{mantissa}.0"
+  exponent = exponent if exponent[:1] in "+-" else f"+{exponent}"
+  fixed = f"{mantissa}e{exponent}"
+  if not isinstance(yaml.safe_load(fixed), float):
+    return ""
+  return f" (YAML 1.1 reads {value.strip()} as a string; write {fixed})"
 
 
 def _coerce(default: Any, value: Any, source: str, field: str, minimum: float | None) -> Any:
@@ -63,7 +265,7 @@ def _coerce(default: Any, value: Any, source: str, field: str, minimum: float | 
     return value
   if isinstance(default, float):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-      raise ConfigError(source, field, f"expected a finite number, got {value!r}")
+      raise ConfigError(source, field, f"expected a finite number, got {value!r}{number_hint(value)}")
     if minimum is not None and value < minimum:
       raise ConfigError(source, field, f"expected a number >= {minimum:g}, got {value}")
     return float(value)

@@ -111,15 +111,18 @@ def _load_models(spec: str, policy: str) -> dict:
 def _camera_pose(path: str):
   """(4, 4) world-from-camera matrix from a camera JSON (rotation, position) or a 4 x 4 matrix (JSON, .npy)."""
   import numpy as np  # pylint: disable=g-import-not-at-top
+  from dexjax.config import parse_json  # pylint: disable=g-import-not-at-top
   from dexjax.render.intrinsics_io import load_camera  # pylint: disable=g-import-not-at-top
   if path.endswith('.npy'):
     matrix = np.load(path, allow_pickle=False)
   else:
-    with open(path, encoding='utf-8') as f:
-      try:
-        data = json.load(f)
-      except json.JSONDecodeError as e:
-        raise ValueError(f'{path}: not JSON ({e})') from e
+    try:
+      with open(path, encoding='utf-8') as f:
+        text = f.read()
+    except UnicodeDecodeError as e:
+      raise ValueError(f'{path}: not a text file (byte {e.start} is not UTF-8); expected a camera JSON or a 4 x 4 '
+                       'matrix') from None
+    data = parse_json(text, path, expected='a camera JSON (rotation, position) or a 4 x 4 matrix')
     if isinstance(data, dict):
       camera = load_camera(path)
       matrix = np.eye(4)

@@ -22,12 +22,11 @@ import os
 import jax
 import jax.numpy as jnp
 import numpy as np
-import yaml
 
-from dexjax.config import ConfigError, load_yaml, override
+from dexjax.config import ConfigError, load_yaml, override, parse_yaml
 from dexjax.render.camera import Camera, Intrinsics
 from dexjax.render.distribution import CameraDistribution, sample_camera
-from dexjax.render.intrinsics_io import check_camera_view, load_camera_or_intrinsics
+from dexjax.render.intrinsics_io import check_camera_view, check_image_side, load_camera_or_intrinsics
 
 _DISTRIBUTION_FIELDS = frozenset(f.name for f in dataclasses.fields(CameraDistribution))
 
@@ -38,10 +37,16 @@ def _is_distribution(path: str) -> bool:
     return False
   try:
     with open(path, encoding='utf-8') as f:
-      data = yaml.safe_load(f)
-  except (OSError, yaml.YAMLError):
+      data = parse_yaml(f.read(), path)
+  except (OSError, UnicodeDecodeError, ConfigError):
     return False  # load_intrinsics reports the problem
   return isinstance(data, dict) and bool(data) and set(data) <= _DISTRIBUTION_FIELDS
+
+
+def _config_error(path: str, error: ValueError) -> ConfigError:
+  """``error`` (a message starting with ``path``, or not) as a `ConfigError` of the file ``path``."""
+  message = str(error)
+  return ConfigError(path, '', message[len(path) + 2:] if message.startswith(f'{path}: ') else message)
 
 
 def apply_camera_file(config, path: str | os.PathLike[str]):
@@ -57,6 +62,11 @@ def apply_camera_file(config, path: str | os.PathLike[str]):
       dist.validate()
     except ValueError as e:
       raise ConfigError(path, 'camera', str(e)) from None
+    try:
+      for side in ('width', 'height'):
+        check_image_side(path, side, getattr(dist, side))
+    except ValueError as e:
+      raise _config_error(path, e) from None
     return dataclasses.replace(config, camera=dist, camera_intrinsics=(), camera_pose=())
   try:
     k, camera = load_camera_or_intrinsics(path)
@@ -65,8 +75,7 @@ def apply_camera_file(config, path: str | os.PathLike[str]):
   except OSError as e:
     raise ConfigError(path, '', f'cannot read the file ({e.strerror})') from None
   except ValueError as e:
-    message = str(e)
-    raise ConfigError(path, '', message[len(path) + 2:] if message.startswith(f'{path}: ') else message) from None
+    raise _config_error(path, e) from None
   pose = () if camera is None else tuple(float(x) for x in np.asarray(camera.rotation).reshape(-1)) + tuple(
       float(x) for x in np.asarray(camera.position))
   intrinsics = (float(k.fx), float(k.fy), float(k.cx), float(k.cy), float(k.width), float(k.height))

@@ -14,13 +14,13 @@ axis. Every problem is reported with the file, the grasp index, the field and wh
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from typing import Any
 
 import numpy as np
 
+from dexjax.config import ConfigError, parse_json
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 
 GRIPPER_NAMES = ("parallel_jaw", "suction")
@@ -52,17 +52,20 @@ def load_grasp_json(path: str | os.PathLike[str]) -> Any:
   """The decoded JSON document of the grasp file ``path`` (validate it with `parse_grasps`).
 
   Raises:
-    GraspFileError: the file is not UTF-8 text or not valid JSON (naming the file).
+    GraspFileError: the file is not UTF-8 text, not valid JSON or nested deeper than
+      `dexjax.config.MAX_NESTING` levels (naming the file, and the line and column where known).
     OSError: the file cannot be read (missing, a directory, no permission).
   """
   name = os.fspath(path)
   try:
     with open(name, encoding="utf-8") as f:
-      return json.load(f)
+      text = f.read()
   except UnicodeDecodeError as e:
     raise GraspFileError(f"{name}: not a text file (byte {e.start} is not UTF-8); expected grasp JSON") from None
-  except json.JSONDecodeError as e:
-    raise GraspFileError(f"{name}: not valid JSON ({e}); expected {{\"grasps\": [...]}}") from None
+  try:
+    return parse_json(text, name, expected='{"grasps": [...]}')
+  except ConfigError as e:
+    raise GraspFileError(str(e)) from None
 
 
 def parse_grasps(data: Any, source: str, *, default_width: float) -> list[tuple[str, dict[str, np.ndarray]]]:

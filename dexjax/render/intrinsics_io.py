@@ -10,7 +10,10 @@ Formats (see docs/cameras.md):
 * a ``camera_calibration`` / ``camera_info_manager`` YAML (``image_width``, ``image_height``,
   ``camera_matrix: {data: [...]}``, ``distortion_coefficients: {data: [...]}``).
 
-Files ending in ``.yaml`` or ``.yml`` are parsed as YAML, anything else as JSON. We always write JSON.
+Files ending in ``.yaml`` or ``.yml`` are parsed as YAML, anything else as JSON (by
+`dexjax.config.parse_yaml_documents` and `parse_json`: deep nesting and duplicate YAML keys are refused). We always
+write JSON. Width and height are at most `MAX_IMAGE_SIDE` pixels and the principal point lies in the image
+(0 <= cx <= width, 0 <= cy <= height).
 Errors name the file, the field and the expected value.
 """
 
@@ -26,15 +29,21 @@ from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
-import yaml
 
+from dexjax.config import ConfigError, number_hint, parse_json, parse_yaml_documents
 from dexjax.render.camera import Camera, Intrinsics
 
 ROTATION_TOLERANCE = 1e-4  # max |R^T R - I| and |det R - 1| accepted for a stored rotation
 
+#: Largest image width and height accepted from a camera or intrinsics file, pixels: room for a 4K sensor
+#: (3840 x 2160), within the offscreen framebuffer every GL backend provides (larger ones fail inside MuJoCo:
+#: "Offscreen framebuffer is not complete") and the memory of one image per ray-casting call.
+MAX_IMAGE_SIDE = 4096
+
 
 def _read_mapping(path: str | os.PathLike) -> dict[str, Any]:
-  """The top-level mapping of the JSON or YAML file ``path``."""
+  """The top-level mapping of the JSON or YAML file ``path`` (read by `dexjax.config.parse_json` or
+  `parse_yaml_documents`: too deep nesting and duplicate YAML keys are refused, naming the line)."""
   name = os.fspath(path)
   try:
     text = Path(path).read_text(encoding='utf-8')
@@ -44,13 +53,14 @@ def _read_mapping(path: str | os.PathLike) -> dict[str, Any]:
   is_yaml = Path(path).suffix.lower() in ('.yaml', '.yml')
   try:
     if is_yaml:
-      documents = [d for d in yaml.safe_load_all(text) if d is not None]  # `rostopic echo` ends with '---'
-      data = documents[0] if documents else None
+      documents = [d for d in parse_yaml_documents(text, name, expected=None) if d is not None]  # `rostopic echo`
+      data = documents[0] if documents else None  # ends with '---'
     else:
-      data = json.loads(text)
-  except (yaml.YAMLError, json.JSONDecodeError) as e:
+      data = parse_json(text, name, expected=None)
+  except ConfigError as e:
     kind = 'YAML' if is_yaml else 'JSON'
-    raise ValueError(f'{name}: expected a {kind} mapping of camera fields, could not parse it: {e}') from None
+    raise ValueError(f'{name}: expected a {kind} mapping of camera fields, could not parse it: '
+                     f'{e.field + ": " if e.field else ""}{e.problem}') from None
   if not isinstance(data, dict):
     raise ValueError(f'{name}: expected a mapping of camera fields at the top level, got {type(data).__name__}')
   return data
@@ -58,7 +68,7 @@ def _read_mapping(path: str | os.PathLike) -> dict[str, Any]:
 
 def _number(name: str, field: str, value: Any, expected: str = 'a finite number', ok=None) -> float:
   """``value`` as a float; raises ValueError naming ``name`` and ``field`` unless finite and ``ok(value)``."""
-  message = f'{name}: {field}: expected {expected}, got {value!r}'
+  message = f'{name}: {field}: expected {expected}, got {value!r}{number_hint(value)}'
   if isinstance(value, bool) or not isinstance(value, numbers.Real):
     raise ValueError(message)
   x = float(value)
@@ -67,10 +77,12 @@ def _number(name: str, field: str, value: Any, expected: str = 'a finite number'
   return x
 
 
-def _size(name: str, field: str, value: Any) -> int:
-  """``value`` as an int; raises ValueError unless it is a positive integer (not a bool or a float)."""
-  if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value <= 0:
-    raise ValueError(f'{name}: {field}: expected a positive integer (pixels), got {value!r}')
+def check_image_side(name: str, field: str, value: Any) -> int:
+  """``value`` as an int; raises ValueError naming ``name`` and ``field`` unless it is an integer (not a bool or a
+  float) in [1, `MAX_IMAGE_SIDE`] pixels."""
+  if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 < value <= MAX_IMAGE_SIDE:
+    raise ValueError(f'{name}: {field}: expected a positive integer of at most {MAX_IMAGE_SIDE} (pixels; the '
+                     f'largest image side dexjax renders), got {value!r}')
   return int(value)
 
 
@@ -82,8 +94,19 @@ def _field(name: str, data: dict[str, Any], *fields: str) -> tuple[str, Any]:
   raise ValueError(f'{name}: {fields[0]}: missing field (expected {" or ".join(fields)})')
 
 
-def _make_intrinsics(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> Intrinsics:
-  """`Intrinsics` with float32 scalar arrays."""
+def _principal_point(name: str, fields: tuple[str, str], cx: float, cy: float, width: int, height: int) -> None:
+  """Raises ValueError naming the field (``fields``: the names of cx and cy in the file) unless the principal
+  point lies in the image: 0 <= cx <= width, 0 <= cy <= height."""
+  for field, value, size, side in ((fields[0], cx, width, 'width'), (fields[1], cy, height, 'height')):
+    if not 0 <= value <= size:
+      raise ValueError(f'{name}: {field}: expected a number in [0, {side} = {size}] (pixels; the principal point '
+                       f'lies in the image), got {value:g}')
+
+
+def _make_intrinsics(name: str, fx: float, fy: float, cx: float, cy: float, width: int, height: int, *,
+                     fields: tuple[str, str] = ('cx', 'cy')) -> Intrinsics:
+  """`Intrinsics` with float32 scalar arrays, once the principal point is checked (`_principal_point`)."""
+  _principal_point(name, fields, cx, cy, width, height)
   return Intrinsics(fx=jnp.float32(fx), fy=jnp.float32(fy), cx=jnp.float32(cx), cy=jnp.float32(cy),
                     width=width, height=height)
 
@@ -95,9 +118,9 @@ def _plain_intrinsics(name: str, data: dict[str, Any]) -> Intrinsics:
   fy = _number(name, 'fy', _field(name, data, 'fy')[1], positive, lambda x: x > 0)
   cx = _number(name, 'cx', _field(name, data, 'cx')[1], 'a finite number (pixels)')
   cy = _number(name, 'cy', _field(name, data, 'cy')[1], 'a finite number (pixels)')
-  width = _size(name, 'width', _field(name, data, 'width')[1])
-  height = _size(name, 'height', _field(name, data, 'height')[1])
-  return _make_intrinsics(fx, fy, cx, cy, width, height)
+  width = check_image_side(name, 'width', _field(name, data, 'width')[1])
+  height = check_image_side(name, 'height', _field(name, data, 'height')[1])
+  return _make_intrinsics(name, fx, fy, cx, cy, width, height)
 
 
 def _flat_numbers(value: Any) -> list[Any] | None:
@@ -140,12 +163,12 @@ def _ros_intrinsics(name: str, data: dict[str, Any]) -> Intrinsics:
   """Intrinsics from a ROS CameraInfo dump (``width``, ``height``, ``K``/``k``, ``D``/``d``)."""
   field, k = _field(name, data, 'K', 'k')
   fx, fy, cx, cy = _matrix_k(name, field, k)
-  width = _size(name, 'width', _field(name, data, 'width')[1])
-  height = _size(name, 'height', _field(name, data, 'height')[1])
+  width = check_image_side(name, 'width', _field(name, data, 'width')[1])
+  height = check_image_side(name, 'height', _field(name, data, 'height')[1])
   for d in ('D', 'd'):
     if d in data:
       _warn_distortion(name, d, data[d])
-  return _make_intrinsics(fx, fy, cx, cy, width, height)
+  return _make_intrinsics(name, fx, fy, cx, cy, width, height, fields=(f'{field}[2] (cx)', f'{field}[5] (cy)'))
 
 
 def _calibration_intrinsics(name: str, data: dict[str, Any]) -> Intrinsics:
@@ -154,12 +177,13 @@ def _calibration_intrinsics(name: str, data: dict[str, Any]) -> Intrinsics:
   if not isinstance(matrix, dict) or 'data' not in matrix:
     raise ValueError(f'{name}: camera_matrix: expected a mapping with data: [9 numbers], got {matrix!r}')
   fx, fy, cx, cy = _matrix_k(name, 'camera_matrix.data', matrix['data'])
-  width = _size(name, 'image_width', _field(name, data, 'image_width')[1])
-  height = _size(name, 'image_height', _field(name, data, 'image_height')[1])
+  width = check_image_side(name, 'image_width', _field(name, data, 'image_width')[1])
+  height = check_image_side(name, 'image_height', _field(name, data, 'image_height')[1])
   distortion = data.get('distortion_coefficients')
   if isinstance(distortion, dict) and 'data' in distortion:
     _warn_distortion(name, 'distortion_coefficients.data', distortion['data'])
-  return _make_intrinsics(fx, fy, cx, cy, width, height)
+  return _make_intrinsics(name, fx, fy, cx, cy, width, height,
+                          fields=('camera_matrix.data[2] (cx)', 'camera_matrix.data[5] (cy)'))
 
 
 def _intrinsics_from_mapping(name: str, data: dict[str, Any]) -> Intrinsics:
