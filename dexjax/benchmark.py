@@ -21,8 +21,10 @@ Writes DIR/attempts.jsonl (one line per attempt, appended as it ends: policy, gr
 verdicts and failure reasons, object, times, bin state), DIR/results.json (``{"policies": {NAME: {"reliability",
 "mpph", "attempts", "successes", "judge_agreement", "per_level", "per_object", ...}}, "object_difficulty", "config"}``),
 DIR/benchmark.json (the settings) and the figures reliability.png, per_object.png, difficulty.png. Rerun the same
-command to resume a killed run at its next attempt, with the same results. Exit code 0 on success, 1 when some
-trials failed (the others are summarised), 2 for bad input (docs/errors.md).
+command to resume a killed run at its next attempt, with the same results. DIR must be new, empty or a benchmark
+run's (its benchmark.json): files the benchmark did not write are never overwritten or added to. The models are
+loaded before the first trial. Exit code 0 on success, 1 when some trials failed (the others are summarised), 2
+for bad input (docs/errors.md), 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ def _parser() -> argparse.ArgumentParser:
                  help='a policy to benchmark (repeat for several)')
   p.add_argument('--objects', nargs='+', required=True, metavar='SOURCE',
                  help='object sources: procedural:L2/5000:25, builtin:NAME, mesh files or folders')
-  p.add_argument('--out', required=True, metavar='DIR', help='output directory (rerun to resume)')
+  p.add_argument('--out', required=True, metavar='DIR',
+                 help='output directory: new, empty, or a benchmark run to resume')
   p.add_argument('--per-trial', type=int, default=25, help='objects in the bin per trial (default 25)')
   p.add_argument('--trials', type=int, default=5, help='trials per policy (default 5)')
   p.add_argument('--judge', choices=('physics', 'analytic'), default='physics',
@@ -124,11 +127,12 @@ def main(argv: list[str] | None = None) -> int:
   _check_args(args)
   import dataclasses  # pylint: disable=g-import-not-at-top (slow imports after the checks)
   from dexjax.bench.protocol import Protocol  # pylint: disable=g-import-not-at-top
-  from dexjax.bench.runner import BenchmarkSpec, run_benchmark  # pylint: disable=g-import-not-at-top
+  from dexjax.bench.runner import BenchmarkSpec, check_run_dir, run_benchmark  # pylint: disable=g-import-not-at-top
   from dexjax.config import load_yaml, validate_generate_config  # pylint: disable=g-import-not-at-top
   from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top
   from dexjax.bench.runner import benchmark_noise  # pylint: disable=g-import-not-at-top
   from dexjax.render.noise import SensorNoise  # pylint: disable=g-import-not-at-top
+  check_run_dir(args.out)  # before the configs: a folder of the user's fails at once (the settings: run_benchmark)
   config = load_generate_config(args.config, camera_config=args.camera_config, objects=args.objects)
   validate_generate_config(config, args.config or 'the default config')
   configured_noise = args.config is not None and 'noise' in (load_yaml(args.config) or {})

@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
   from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top (slow imports after parsing)
   from dexjax.data.shards import GRIPPER_NAMES  # pylint: disable=g-import-not-at-top
-  from dexjax.models.shipped import PRETRAINED, load_models  # pylint: disable=g-import-not-at-top
+  from dexjax.models.shipped import PRETRAINED, held_grippers, load_models  # pylint: disable=g-import-not-at-top
   from dexjax.train.config import TrainConfig  # pylint: disable=g-import-not-at-top
   from dexjax.train.validation import evaluate_model  # pylint: disable=g-import-not-at-top
   checkpoint = args.checkpoint if args.checkpoint == PRETRAINED else Path(args.checkpoint).absolute()
@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> int:
   if args.views != 'saved':
     models = [dataclasses.replace(m, symmetric_views=args.views == 'symmetric') for m in models]
   if not models:
-    raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} (has {sorted(found)})')
+    raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} '
+                            f'(has {held_grippers(checkpoint, found)})')
   results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress,
                                       interval_by=args.intervals, num_resamples=args.resamples) for m in models}
   print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': os.fspath(Path(args.data).absolute()),

@@ -10,6 +10,8 @@ Each worker process builds the `PickingWorld` and the jitted planners once and k
 Process and serial workers append every attempt to the log themselves (`append_attempt` locks the file); Ray
 workers, which may run on other machines, return their trial's records and the driver appends them when the trial
 ends. ``OUT/benchmark.json`` holds the run's settings; resuming with different settings is refused, naming them.
+Before anything is computed or written, `check_run_dir` makes sure a run never overwrites or adds to files it did
+not write (OUT is new, empty, or a benchmark run's) and `check_models` loads the policies' GQ-CNNs.
 """
 
 from __future__ import annotations
@@ -19,14 +21,16 @@ import functools
 import hashlib
 import json
 import os
+import re
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from dexjax.bench.attempt_log import append_attempt, read_attempts
+from dexjax.bench.attempt_log import RECORD_FIELDS, append_attempt, read_attempts
 from dexjax.bench.execution import PhysicsSettings
 from dexjax.bench.failure_memory import FailureMemory
 from dexjax.bench.world import BENCHMARK_HULLS
+from dexjax.cli import OutputError, check_output_dir, is_dexjax_png, stamp_png
 from dexjax.objects.collision import HullSettings
 from dexjax.bench.judges import analytic_judge, physics_judge
 from dexjax.bench.picking_metrics import MotionModel, object_difficulty, summarize
@@ -46,6 +50,12 @@ JUDGES = ('physics', 'analytic')
 #: guess. Until 2026-12-06 the benchmark used 1 mm, a guess (docs/benchmark.md).
 BENCHMARK_NOISE_SETTINGS = {'use_gp': True, 'gp_sigma': 0.0005, 'use_dropout': True, 'dropout_rate': 0.01}
 SETTINGS_FILE, LOG_FILE, RESULTS_FILE = 'benchmark.json', 'attempts.jsonl', 'results.json'
+FIGURE_FILES = ('reliability.png', 'per_object.png', 'difficulty.png')
+#: Keys of ``benchmark.json`` (`BenchmarkSpec.settings_json`) and ``results.json`` (`summarize_run`) by which a
+#: directory is recognised as a benchmark run's (`check_run_dir`).
+SETTINGS_KEYS = ('policies', 'objects', 'protocol', 'judge', 'model', 'seed', 'config_fingerprint')
+RESULTS_KEYS = ('policies', 'object_difficulty', 'config')
+_TEMPORARY_FILE = re.compile(r'\..+\.tmp-.*')  # a file `dexjax.cli.atomic_write` was writing when killed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,30 +185,100 @@ def _trial_task(spec: BenchmarkSpec, log_path: str, cache_dir: str | None, appen
   """Runs (or resumes) the trial of task ``index``; returns its records when the driver appends them."""
   from dexjax.bench.trial import run_trial  # pylint: disable=g-import-not-at-top
   from dexjax.compile_cache import persistent_compilation_cache  # pylint: disable=g-import-not-at-top
+  from dexjax.generate.run import file_system_error  # pylint: disable=g-import-not-at-top
   policy, trial = pairs(spec)[index]
-  logged = [r for r in read_attempts(log_path) if r['policy'] == policy and r['trial'] == trial]
+  logged = [r for r in read_attempts(log_path, fields=RECORD_FIELDS) if (r['policy'], r['trial']) == (policy, trial)]
   logged.sort(key=lambda r: r['attempt'])
-  with persistent_compilation_cache():
-    state = _worker_state(spec, cache_dir)
-    records = run_trial(state['world'], state['planners'][policy], state['judges'], policy=policy, trial=trial,
-                        seed=spec.seed, advance_by=spec.judge, protocol=spec.protocol, motion=spec.motion,
-                        log_path=log_path if append else None, logged=logged, memory=spec.memory)
+  try:
+    with persistent_compilation_cache():
+      state = _worker_state(spec, cache_dir)
+      records = run_trial(state['world'], state['planners'][policy], state['judges'], policy=policy, trial=trial,
+                          seed=spec.seed, advance_by=spec.judge, protocol=spec.protocol, motion=spec.motion,
+                          log_path=log_path if append else None, logged=logged, memory=spec.memory)
+  except OSError as e:  # disk full: the driver stops the run with one line naming the file (run_benchmark)
+    recorded = file_system_error(e)
+    if recorded is None:
+      raise
+    return {'records': [], 'attempts': len(logged), 'file_system_error': recorded}
   return {'records': [] if append else records[len(logged):], 'attempts': len(records)}
 
 
-def _check_settings(out: Path, settings: dict[str, Any]) -> None:
-  path = out / SETTINGS_FILE
-  if path.exists():
+def _read_json_object(path: Path) -> dict[str, Any] | None:
+  """The JSON object in ``path``; None if it is unreadable, not UTF-8 JSON or not an object."""
+  try:
+    data = json.loads(path.read_bytes().decode('utf-8'))
+  except (OSError, ValueError):
+    return None
+  return data if isinstance(data, dict) else None
+
+
+def _is_own(name: str, path: Path) -> bool:
+  """Whether ``path`` (named ``name`` in a run directory) is a file a benchmark run wrote."""
+  if name in FIGURE_FILES:
     try:
-      old = json.loads(path.read_text())
-    except ValueError as e:
-      raise ValueError(f'{path}: expected the JSON settings of a benchmark run ({e})') from e
+      return is_dexjax_png(path)
+    except (OSError, ValueError):
+      return False
+  data = _read_json_object(path)
+  keys = SETTINGS_KEYS if name == SETTINGS_FILE else RESULTS_KEYS
+  return data is not None and all(k in data for k in keys)
+
+
+def check_run_dir(out_dir: str | os.PathLike[str], settings: dict[str, Any] | None = None) -> Path:
+  """Checks, before anything is computed or written, that a benchmark may write into ``out_dir``; returns it.
+
+  ``out_dir`` must be a directory or not exist yet, under a writable directory. A new run needs it absent or
+  empty; otherwise it must hold a benchmark run (its ``benchmark.json``, `SETTINGS_KEYS`), which is resumed: then
+  ``results.json`` and the figures there must be the run's own (a results object; PNGs marked by dexjax),
+  ``attempts.jsonl`` must be a whole attempt log, and with ``settings`` (`BenchmarkSpec.settings_json`) the run's
+  settings must be these. Other files of a run directory are never written.
+
+  Raises:
+    OutputError: ``out_dir`` cannot be written, or holds files a benchmark did not write (naming one).
+    ValueError: a damaged attempt log (naming the file and line), or a run with other settings (naming them).
+  """
+  out = check_output_dir(out_dir, option='--out')
+  if not out.exists():
+    return out
+  entries = sorted(p.name for p in out.iterdir() if not _TEMPORARY_FILE.fullmatch(p.name))
+  if entries and SETTINGS_FILE not in entries:
+    shown = ', '.join(repr(n) for n in entries[:3]) + (', ...' if len(entries) > 3 else '')
+    raise OutputError('--out', out, f'is not empty ({shown}) and holds no benchmark run (no {SETTINGS_FILE}); '
+                                    'expected a new or empty directory, or the --out of a benchmark run to resume')
+  for name in (SETTINGS_FILE, RESULTS_FILE) + FIGURE_FILES:
+    if name in entries and not _is_own(name, out / name):
+      raise OutputError('--out', out, f"holds a '{name}' this command did not write; expected a benchmark run's "
+                                      f'own {name} (move the file away, or choose another --out)')
+  read_attempts(out / LOG_FILE, fields=RECORD_FIELDS)  # a damaged log fails here, naming its file and line
+  if settings is not None and SETTINGS_FILE in entries:
+    old = _read_json_object(out / SETTINGS_FILE)
     changed = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
     if changed:
       raise ValueError(f'{out}: holds a benchmark run with other settings ({", ".join(changed)}); resume with the '
                        'same settings, or choose another --out')
-  else:
-    _write_json(path, settings)
+  return out
+
+
+def check_models(spec: BenchmarkSpec) -> None:
+  """Loads the GQ-CNNs of the learned policies here, before any trial, so that a missing, damaged or incomplete
+  ``spec.model`` fails once, naming the file, instead of failing every trial.
+
+  Raises:
+    FileNotFoundError, ValueError: nothing loadable at ``spec.model``, a damaged model, or no model of a gripper a
+      policy needs (`dexjax.models.load_models`).
+  """
+  from dexjax.models.shipped import held_grippers, load_models  # pylint: disable=g-import-not-at-top
+  from dexjax.policy.presets import required_grippers, uses_models  # pylint: disable=g-import-not-at-top
+  learned = [p for p in spec.policies if uses_models(p)]
+  if not learned:
+    return
+  models = load_models(spec.model)
+  for name in learned:
+    missing = [g for g in required_grippers(name) if g not in models]
+    if missing:
+      raise ValueError(f"--model: {spec.model}: policy {name!r} needs a GQ-CNN of {' and '.join(missing)} (has "
+                       f"{held_grippers(spec.model, models)}); expected 'pretrained', a training run of these "
+                       'grippers, or that gripper\'s saved model')
 
 
 def _write_json(path: Path, data: Any) -> None:
@@ -243,17 +323,22 @@ def run_benchmark(spec: BenchmarkSpec, out_dir: str | os.PathLike[str], *, worke
   """Runs (or resumes) the benchmark into ``out_dir``; returns the results (also written to results.json).
 
   Raises:
-    ValueError: invalid settings, or ``out_dir`` holds a run with other settings.
+    ValueError: invalid settings, ``out_dir`` holds a run with other settings or a damaged attempt log, or the
+      models cannot be loaded (`check_models`).
+    OutputError: ``out_dir`` holds files a benchmark did not write (`check_run_dir`).
   """
   from dexjax.generate.parallel import run_tasks  # pylint: disable=g-import-not-at-top
+  from dexjax.generate.run import raise_file_system_error  # pylint: disable=g-import-not-at-top
   spec.validate()
-  check_objects(spec, cache_dir)
-  out = Path(out_dir)
-  out.mkdir(parents=True, exist_ok=True)
   settings = spec.settings_json()
-  _check_settings(out, settings)
+  out = check_run_dir(out_dir, settings)
+  check_models(spec)
+  check_objects(spec, cache_dir)
+  out.mkdir(parents=True, exist_ok=True)
+  if not (out / SETTINGS_FILE).exists():
+    _write_json(out / SETTINGS_FILE, settings)
   log = out / LOG_FILE
-  records = read_attempts(log, repair=True)
+  records = read_attempts(log, repair=True, fields=RECORD_FIELDS)
   todo = unfinished(records, spec)
   append = backend != 'ray'
   task = functools.partial(_trial_task, spec, os.fspath(log), None if cache_dir is None else os.fspath(cache_dir),
@@ -262,21 +347,42 @@ def run_benchmark(spec: BenchmarkSpec, out_dir: str | os.PathLike[str], *, worke
   def on_result(index: int, result: dict) -> None:
     for record in result['records']:
       append_attempt(log, record)
+    raise_file_system_error(result)  # disk full: stop at once, one error line naming the file
 
   try:
     run = run_tasks(task, todo, backend=backend, workers=workers, progress=progress, on_result=on_result,
                     ray_address=ray_address, description='trials')
   finally:
     release_worker()  # a serial run built the world here: free its renderer and compiled planners
-  records = read_attempts(log)
+  records = read_attempts(log, fields=RECORD_FIELDS)
   results = summarize_run(records, spec, settings)
   results['failed_trials'] = {f'{pairs(spec)[i][0]}/{pairs(spec)[i][1]}': msg for i, msg in run.failures.items()}
   _write_json(out / RESULTS_FILE, results)
   if figures and records:
-    from dexjax.bench.figures import save_figures  # pylint: disable=g-import-not-at-top (matplotlib)
-    results['figures'] = save_figures(results, out)
+    results['figures'] = _save_figures(results, out)
     _write_json(out / RESULTS_FILE, results)
   return results
+
+
+def _save_figures(results: dict[str, Any], out: Path) -> list[str]:
+  """Draws the figures (`dexjax.bench.figures.save_figures`) into a temporary directory in ``out``, marks them as
+  dexjax's (a resumed run recognises them, `check_run_dir`) and moves them into ``out``; returns their names.
+  An `OSError` (disk full) names the figure it was writing."""
+  import tempfile  # pylint: disable=g-import-not-at-top
+  from dexjax.bench.figures import save_figures  # pylint: disable=g-import-not-at-top (matplotlib)
+  with tempfile.TemporaryDirectory(dir=out, prefix='.figures.tmp-') as tmp:
+    try:
+      names = save_figures(results, tmp)
+      for name in names:
+        stamp_png(Path(tmp) / name, 'benchmark figure')
+    except OSError as e:
+      if e.errno is None:
+        raise
+      where = out / Path(e.filename).name if e.filename is not None else out
+      raise OSError(e.errno, e.strerror, os.fspath(where)) from e
+    for name in names:
+      os.replace(Path(tmp) / name, out / name)
+  return names
 
 
 def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: dict[str, Any]) -> dict[str, Any]:
@@ -308,6 +414,7 @@ def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: 
   return {'policies': policies, 'object_difficulty': object_difficulty(deployable), 'config': settings}
 
 
-__all__ = ['BENCHMARK_NOISE_SETTINGS', 'BenchmarkSpec', 'JUDGES', 'LOG_FILE', 'RESULTS_FILE', 'SETTINGS_FILE',
-           'benchmark_config', 'benchmark_noise', 'check_objects', 'pairs', 'release_worker', 'run_benchmark',
-           'summarize_run', 'unfinished']
+__all__ = ['BENCHMARK_NOISE_SETTINGS', 'BenchmarkSpec', 'FIGURE_FILES', 'JUDGES', 'LOG_FILE', 'RESULTS_FILE',
+           'RESULTS_KEYS', 'SETTINGS_FILE', 'SETTINGS_KEYS', 'benchmark_config', 'benchmark_noise', 'check_models',
+           'check_objects', 'check_run_dir', 'pairs', 'release_worker', 'run_benchmark', 'summarize_run',
+           'unfinished']

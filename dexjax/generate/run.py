@@ -13,6 +13,7 @@ command's own (the run's config record; a PNG marked by dexjax), unless ``overwr
 from __future__ import annotations
 
 import dataclasses
+import errno
 import functools
 import json
 import math
@@ -37,6 +38,38 @@ from dexjax.objects.sets import load_object_set, prepare_object_set
 
 CONFIG_NAME = 'config.json'
 PREVIEW_NAME = 'preview.png'
+
+
+#: Errors of the file system (disk full, quota, read-only, permission denied) that stop a run with one ``error:``
+#: line naming the file (exit 2, docs/errors.md) instead of failing every remaining task with a traceback.
+FILE_SYSTEM_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM)
+
+
+def file_system_error(error: BaseException) -> dict[str, Any] | None:
+  """A picklable record of ``error`` if it is a file system error (`FILE_SYSTEM_ERRNOS`), for a task to return
+  to the parent (`raise_file_system_error`); None otherwise."""
+  if isinstance(error, OSError) and error.errno in FILE_SYSTEM_ERRNOS:
+    return {'errno': error.errno, 'strerror': error.strerror, 'filename': error.filename}
+  return None
+
+
+def raise_file_system_error(result: dict[str, Any]) -> None:
+  """Raises the `OSError` a task recorded in ``result['file_system_error']`` (`file_system_error`), if any."""
+  error = result.get('file_system_error')
+  if error is not None:
+    raise OSError(error['errno'], error['strerror'], error['filename'])
+
+
+def _shard_task(index: int, **kwargs: Any) -> dict[str, Any]:
+  """`generate_shard`, but a file system error (disk full, ...) is returned for the parent to stop the run with one
+  line naming the file, instead of every later shard failing with the same traceback."""
+  try:
+    return generate_shard(index, **kwargs)
+  except OSError as e:
+    recorded = file_system_error(e)
+    if recorded is None:
+      raise
+    return {'file_system_error': recorded}
 
 
 def num_shards(config: GenerateConfig, num_images: int) -> int:
@@ -203,6 +236,8 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
       anything; a task's own errors are reported per shard in ``shards.failed`` instead).
     ValueError: ``num_images < 1``.
     OutputError: ``out_dir`` cannot be written, or holds files this run did not write (`check_run_dir`).
+    OSError: the disk is full (or read-only, ...) while writing a shard: the run stops, naming the file; shards
+      already written are complete and kept (`FILE_SYSTEM_ERRNOS`).
     dexjax.data.ConfigMismatchError: ``out_dir`` holds another run.
   """
   total = num_shards(config, num_images)
@@ -232,6 +267,7 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
 
   def on_result(index: int, result: dict[str, Any]) -> None:
     del index
+    raise_file_system_error(result)  # disk full: stop at once (finished shards are kept), one error line
     stats.add(result['rows'])
     if result.get('warm'):
       entry = workers_seen.setdefault(result['pid'], [0.0, 0.0])
@@ -243,7 +279,7 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
       stage_seconds[k] += v
 
   clock = time.perf_counter()
-  task = functools.partial(generate_shard, config=config, out_dir=os.fspath(out), cache_dir=cache_dir)
+  task = functools.partial(_shard_task, config=config, out_dir=os.fspath(out), cache_dir=cache_dir)
   try:
     result = run_tasks(task, todo, backend=backend if parallel else 'serial', workers=workers, progress=progress,
                        on_result=on_result, ray_address=ray_address)
@@ -274,5 +310,6 @@ def _preview(out: Path, total: int, assignment: tuple[int, int]) -> str | None:
   return None
 
 
-__all__ = ['CONFIG_NAME', 'PREVIEW_NAME', 'check_run_dir', 'generate_dataset', 'load_run_config', 'num_shards',
-           'warm_caches', 'write_run_config']
+__all__ = ['CONFIG_NAME', 'FILE_SYSTEM_ERRNOS', 'PREVIEW_NAME', 'check_run_dir', 'file_system_error',
+           'generate_dataset', 'load_run_config', 'num_shards', 'raise_file_system_error', 'warm_caches',
+           'write_run_config']

@@ -11,9 +11,14 @@ the stored normalisation itself, so it is the whole quality function Q(y, u) of 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
+import json
 import os
+import signal
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +36,13 @@ from dexjax.models.symmetry import NUM_VIEWS, symmetric_views
 
 FORMAT = 'dexjax-gqcnn/1'
 BEST_DIR = 'best'
+
+#: The JSON files orbax reads from a saved model's step directory, checked (`check_saved_files`) before orbax
+#: opens them: orbax would log an absl ``ERROR`` line for a damaged ``_CHECKPOINT_METADATA`` and raise a
+#: ``UnicodeDecodeError`` naming no file for the others. ``_CHECKPOINT_METADATA`` may be missing (older orbax).
+SAVED_JSON_FILES = ('_CHECKPOINT_METADATA', 'model/metadata', 'params/_METADATA')
+_OPTIONAL_JSON_FILES = ('_CHECKPOINT_METADATA',)
+_DAMAGED_HINT = 'expected a model saved by dexjax (python -m dexjax.train, dexjax.models.save_model); save it again'
 
 
 @struct.dataclass
@@ -117,11 +129,53 @@ def save_model(directory: str | os.PathLike, step: int, model: GraspQualityModel
   directory = Path(directory).absolute()
   meta = model_meta(model, info)
   with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
-    manager.save(step, args=ocp.args.Composite(
-        params=ocp.args.StandardSave({'params': model.params, 'normalization': model.normalization}),
-        model=ocp.args.JsonSave(meta)), force=True)
-    manager.wait_until_finished()
+    try:
+      with interrupt_deferred():
+        manager.save(step, args=ocp.args.Composite(
+            params=ocp.args.StandardSave({'params': model.params, 'normalization': model.normalization}),
+            model=ocp.args.JsonSave(meta)), force=True)
+        manager.wait_until_finished()
+    except BaseException:
+      remove_orbax_temporaries(directory)
+      raise
   return directory / str(step)
+
+
+@contextlib.contextmanager
+def interrupt_deferred() -> Iterator[None]:
+  """Lets the block (an orbax save) finish before a Ctrl-C takes effect: the first SIGINT is held and raised as
+  `KeyboardInterrupt` when the block ends, so the checkpoint is whole, orbax's writer threads are done (an
+  interrupted save leaves them running: their tracebacks print after the command's ``error: interrupted``) and no
+  ``*.orbax-checkpoint-tmp`` directory is left. A second Ctrl-C interrupts at once. Outside the main thread (where
+  Python delivers signals) the block just runs."""
+  if threading.current_thread() is not threading.main_thread():
+    yield
+    return
+  held: list[int] = []
+  previous = signal.getsignal(signal.SIGINT)
+
+  def hold(signum, frame):  # pylint: disable=unused-argument
+    if held:
+      signal.signal(signal.SIGINT, previous)
+      raise KeyboardInterrupt
+    held.append(signum)
+
+  signal.signal(signal.SIGINT, hold)
+  try:
+    yield
+  finally:
+    signal.signal(signal.SIGINT, previous)
+  if held:
+    raise KeyboardInterrupt
+
+
+def remove_orbax_temporaries(directory: str | os.PathLike) -> None:
+  """Removes the ``*.orbax-checkpoint-tmp*`` directories an interrupted orbax save left in ``directory``."""
+  import shutil  # pylint: disable=g-import-not-at-top
+  directory = Path(directory)
+  if directory.is_dir():
+    for tmp in directory.glob('*.orbax-checkpoint-tmp*'):
+      shutil.rmtree(tmp, ignore_errors=True)
 
 
 def model_meta(model: GraspQualityModel, info: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -154,13 +208,76 @@ def _model_directory(path: Path, gripper: str | None) -> Path:
                           f"'<gripper>/{BEST_DIR}' of a training run, or a run directory and a gripper){hint}")
 
 
+def _latest_step_dir(directory: Path) -> Path:
+  """The newest numbered step directory of a saved model's directory (orbax's ``latest_step``)."""
+  return directory / str(max(int(p.name) for p in directory.iterdir() if p.name.isdigit() and p.is_dir()))
+
+
+def check_saved_files(step_dir: str | os.PathLike) -> None:
+  """Checks that the JSON files orbax reads from a saved model's step (`SAVED_JSON_FILES`) are whole JSON
+  objects, before orbax opens them.
+
+  Raises:
+    ValueError: naming the damaged or missing file and what was expected.
+  """
+  for name in SAVED_JSON_FILES:
+    path = Path(step_dir) / name
+    if name in _OPTIONAL_JSON_FILES and not path.exists():
+      continue
+    try:
+      data = json.loads(path.read_bytes().decode('utf-8'))
+    except FileNotFoundError:
+      raise ValueError(f'{path}: missing from the saved model; {_DAMAGED_HINT}') from None
+    except (UnicodeDecodeError, ValueError) as e:
+      raise ValueError(f'{path}: damaged, not the JSON file orbax writes ({type(e).__name__}: {e}); '
+                       f'{_DAMAGED_HINT}') from None
+    if not isinstance(data, dict):
+      raise ValueError(f'{path}: damaged, expected a JSON object, got {type(data).__name__}; {_DAMAGED_HINT}')
+
+
+def _short_error(error: BaseException) -> str:
+  """``Type: message`` of an orbax / TensorStore error, cut to its first line and without the long spec."""
+  text = str(error).split('\n')[0].split(' [tensorstore_spec=')[0]
+  return f'{type(error).__name__}: {text[:300]}'
+
+
+@contextlib.contextmanager
+def _reading(step_dir: Path) -> Iterator[None]:
+  """Turns an error of orbax reading a saved model into a `ValueError` naming its step directory."""
+  try:
+    yield
+  except (ValueError, KeyError, TypeError, OSError, RuntimeError) as e:
+    raise ValueError(f'{step_dir}: damaged saved model ({_short_error(e)}); {_DAMAGED_HINT}') from None
+
+
+def _check_meta(meta: Any, where: Path) -> dict[str, Any]:
+  """``meta`` if it is the ``model`` JSON of a dexjax GQ-CNN; ValueError naming the file and field otherwise."""
+  if not isinstance(meta, dict) or meta.get('format') != FORMAT:
+    got = meta.get('format') if isinstance(meta, dict) else meta
+    raise ValueError(f"{where}: field 'format': expected {FORMAT!r}, got {got!r}")
+  for field, kind in (('gripper', str), ('crop_window', int), ('config', dict)):
+    if not isinstance(meta.get(field), kind):
+      raise ValueError(f"{where}: field {field!r}: expected a {kind.__name__}, got {meta.get(field)!r}")
+  return meta
+
+
 def _read_meta(manager: ocp.CheckpointManager, directory: Path) -> tuple[int, dict[str, Any]]:
-  """(newest step, its ``model`` JSON) of a saved model; ValueError if it is not a dexjax GQ-CNN."""
-  step = manager.latest_step()
-  meta = manager.restore(step, args=ocp.args.Composite(model=ocp.args.JsonRestore()))['model']
-  if meta.get('format') != FORMAT:
-    raise ValueError(f"{directory / str(step)}: field 'format': expected {FORMAT!r}, got {meta.get('format')!r}")
-  return step, meta
+  """(newest step, its ``model`` JSON) of a saved model; ValueError naming the file if it is damaged or not a
+  dexjax GQ-CNN."""
+  step_dir = _latest_step_dir(directory)
+  with _reading(step_dir):
+    step = manager.latest_step()
+    meta = manager.restore(step, args=ocp.args.Composite(model=ocp.args.JsonRestore()))['model']
+  return step, _check_meta(meta, directory / str(step) / 'model' / 'metadata')
+
+
+@contextlib.contextmanager
+def _open_saved(path: str | os.PathLike, gripper: str | None) -> Iterator[tuple[Path, ocp.CheckpointManager]]:
+  """(directory, orbax manager) of a saved model whose JSON files were checked first (`check_saved_files`)."""
+  directory = _model_directory(Path(path).absolute(), gripper)
+  check_saved_files(_latest_step_dir(directory))
+  with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
+    yield directory, manager
 
 
 def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityModel:
@@ -173,16 +290,17 @@ def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityMod
 
   Raises:
     FileNotFoundError: nothing saved there (the message says what was expected).
-    ValueError: the checkpoint is not a dexjax GQ-CNN, or is of another gripper than ``gripper``.
+    ValueError: the checkpoint is damaged (naming the file or step directory), not a dexjax GQ-CNN, or of another
+      gripper than ``gripper``.
   """
-  directory = _model_directory(Path(path).absolute(), gripper)
-  with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
+  with _open_saved(path, gripper) as (directory, manager):
     step, meta = _read_meta(manager, directory)
     if gripper is not None and meta['gripper'] != gripper:
       raise ValueError(f"{directory}: field 'gripper': expected {gripper!r}, got {meta['gripper']!r}")
-    config = config_from_json(meta['config'])
-    template = params_template(config)
-    restored = manager.restore(step, args=ocp.args.Composite(params=ocp.args.StandardRestore(template)))['params']
+    with _reading(directory / str(step)):
+      config = config_from_json(meta['config'])
+      template = params_template(config)
+      restored = manager.restore(step, args=ocp.args.Composite(params=ocp.args.StandardRestore(template)))['params']
   return GraspQualityModel(params=restored['params'], normalization=restored['normalization'], config=config,
                            gripper=meta['gripper'], crop_window=int(meta['crop_window']),
                            symmetric_views=bool(meta.get('symmetric_views', False)))
@@ -190,10 +308,10 @@ def load(path: str | os.PathLike, gripper: str | None = None) -> GraspQualityMod
 
 def model_info(path: str | os.PathLike, gripper: str | None = None) -> dict[str, Any]:
   """The ``info`` mapping saved with a model (epoch, validation metrics, ...)."""
-  directory = _model_directory(Path(path).absolute(), gripper)
-  with ocp.CheckpointManager(directory, options=_options(1), item_names=('params', 'model')) as manager:
-    return _read_meta(manager, directory)[1]['info']
+  with _open_saved(path, gripper) as (directory, manager):
+    return _read_meta(manager, directory)[1].get('info', {})
 
 
-__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'config_from_json', 'load', 'params_template', 'model_info', 'model_meta',
-           'predict', 'save_model']
+__all__ = ['BEST_DIR', 'FORMAT', 'GraspQualityModel', 'SAVED_JSON_FILES', 'check_saved_files', 'config_from_json',
+           'interrupt_deferred', 'load', 'params_template', 'model_info', 'model_meta', 'predict',
+           'remove_orbax_temporaries', 'save_model']

@@ -16,6 +16,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -132,6 +133,17 @@ def pretrained_info(gripper: str) -> dict[str, Any]:
   return model_file_info(pretrained_path(gripper))
 
 
+def held_grippers(spec: str | os.PathLike | None, loaded: Mapping[str, Any] | None = None) -> list[str]:
+  """The grippers ``spec`` (as `load_models` takes it) holds a model of, sorted: the shipped set for
+  ``'pretrained'``, a training run's ``<gripper>/best`` directories, and the grippers of the ``loaded`` models
+  (a single model's gripper is only known once it is loaded). For messages that name what a run lacks."""
+  if spec is None or os.fspath(spec) == PRETRAINED:
+    return sorted(PRETRAINED_GRIPPERS)
+  path = Path(spec)
+  held = {g for g in PRETRAINED_GRIPPERS if (path / g).is_dir()} if path.is_dir() else set()
+  return sorted(held | set(loaded or {}))
+
+
 def load_models(spec: str | os.PathLike | None, grippers: tuple[str, ...] = PRETRAINED_GRIPPERS
                 ) -> dict[str, GraspQualityModel]:
   """GQ-CNNs by gripper from what a command line names.
@@ -158,5 +170,6 @@ def load_models(spec: str | os.PathLike | None, grippers: tuple[str, ...] = PRET
   return {model.gripper: model}
 
 
-__all__ = ['MODEL_FILE_SUFFIX', 'PRETRAINED', 'PRETRAINED_GRIPPERS', 'WEIGHTS_DIR', 'load_model_file', 'load_models',
+__all__ = ['MODEL_FILE_SUFFIX', 'PRETRAINED', 'PRETRAINED_GRIPPERS', 'WEIGHTS_DIR', 'held_grippers', 'load_model_file',
+           'load_models',
            'model_file_info', 'pretrained', 'pretrained_info', 'pretrained_path', 'save_model_file']

@@ -5,6 +5,9 @@
 and the best validation value so far. A checkpoint is written every ``every_steps`` SGD steps and at the end of
 every epoch (after its validation); the ``keep`` newest are kept. Orbax writes each step to a temporary
 directory and renames it when complete, so a run killed at any moment leaves only whole checkpoints behind.
+A Ctrl-C during a save lets it finish first (`dexjax.models.saved.interrupt_deferred`: no half-written step, no
+orbax thread still writing when the command exits); a second Ctrl-C stops at once and the temporary directory is
+removed.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from dexjax.models.normalization import Normalization
+from dexjax.models.saved import interrupt_deferred, remove_orbax_temporaries
 from dexjax.train.config import CheckpointConfig
 from dexjax.train.step import TrainState
 
@@ -46,7 +50,11 @@ class Checkpointer:
     return self
 
   def __exit__(self, *exc) -> None:
-    self._manager.close()
+    try:
+      self._manager.close()  # waits for orbax's writer threads
+    finally:
+      if exc[0] is not None:  # an interrupted or failed save: resuming would clean it too, but leave nothing
+        remove_orbax_temporaries(self.directory)
 
   def latest_step(self) -> int | None:
     return self._manager.latest_step()
@@ -55,13 +63,14 @@ class Checkpointer:
     """Saves ``state`` (at its step) with the JSON-ready ``progress``. A step already saved is left alone, or
     with ``replace`` rewritten (the end of an epoch that is also a periodic step: its progress moves on)."""
     step = int(state.step)
-    if step in self._manager.all_steps():
-      if not replace:
-        return
-      self._manager.delete(step)
-    self._manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
-                                                     progress=ocp.args.JsonSave(progress)))
-    self._manager.wait_until_finished()
+    if step in self._manager.all_steps() and not replace:
+      return
+    with interrupt_deferred():  # a Ctrl-C lets the save finish (see `interrupt_deferred`)
+      if step in self._manager.all_steps():
+        self._manager.delete(step)
+      self._manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
+                                                       progress=ocp.args.JsonSave(progress)))
+      self._manager.wait_until_finished()
 
   def restore(self, template: TrainState) -> tuple[TrainState, dict[str, Any]] | None:
     """The newest (state, progress), with the arrays placed like ``template``'s; None without checkpoints."""

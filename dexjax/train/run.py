@@ -19,7 +19,7 @@ from typing import Any
 import yaml
 
 from dexjax.cli import OutputError, check_output_dir
-from dexjax.config import ConfigError
+from dexjax.config import ConfigError, load_yaml
 from dexjax.data.loader import list_shards
 from dexjax.geometry.cache import atomic_write_text, default_cache_dir
 from dexjax.train.batches import GripperStats, dataset_stats
@@ -92,12 +92,11 @@ def _check_resume_config(out: Path, config: TrainConfig) -> None:
   if not path.exists():
     return
   try:
-    with open(path, encoding='utf-8') as f:
-      data = yaml.safe_load(f)
-  except (UnicodeDecodeError, yaml.YAMLError) as e:
-    raise ConfigError(os.fspath(path), '', f'not a readable run config ({type(e).__name__}); expected the '
-                                           'config.yaml this run wrote') from None
-  if not isinstance(data, dict):
+    data = load_yaml(path)
+  except ConfigError as e:
+    raise ConfigError(e.source, e.field, f'not a readable run config ({e.problem}); expected the config.yaml this '
+                                         'run wrote') from None
+  if not data:
     raise ConfigError(os.fspath(path), '', 'expected the mapping of the config.yaml this run wrote')
   saved = train_config_from_dict(data, os.fspath(path))
   if dataclasses.replace(saved, loop=dataclasses.replace(saved.loop, epochs=config.loop.epochs)) != config:
@@ -115,13 +114,13 @@ def apply_init(config: TrainConfig) -> tuple[TrainConfig, dict[str, Any]]:
   """
   if not config.init:
     return config, {}
-  from dexjax.models.shipped import load_models  # pylint: disable=g-import-not-at-top (circular at import)
+  from dexjax.models.shipped import held_grippers, load_models  # pylint: disable=g-import-not-at-top (circular)
   models = load_models(config.init, config.grippers)
   missing = [g for g in config.grippers if g not in models]
   if missing:
-    raise ValueError(f"init: {config.init}: no model of {' and '.join(missing)} there (has {sorted(models)}); "
-                     f"expected 'pretrained', a training run of these grippers, or train only --grippers "
-                     f"{' '.join(sorted(models))}")
+    held = held_grippers(config.init, models)
+    raise ValueError(f"init: {config.init}: no model of {' and '.join(missing)} there (has {held}); expected "
+                     f"'pretrained', a training run of these grippers, or train only --grippers {' '.join(held)}")
   shapes = {(dataclasses.replace(m.config, pose_dim=config.model.pose_dim), m.crop_window) for m in models.values()}
   if len(shapes) > 1:
     raise ValueError(f'init: {config.init}: the grippers\' models differ in architecture; fine-tune one gripper at '
