@@ -20,6 +20,9 @@ generous than Dex-Net's Python loop over them). Two solvers for the wrench-resis
 Both solvers see exactly the same random draws and contacts (the random generator is consumed before the
 solve), so their per-sample decisions can be compared directly. ``problems=`` collects each solved problem
 (`WrenchProblem`) for a solver-only comparison.
+
+Without cvxopt the module still imports: ``CVXOPT_MISSING`` says why, `available_solvers` leaves ``'cvxopt'`` out
+and asking for it raises `ModuleNotFoundError`; ``'nnls'`` needs only SciPy.
 """
 
 from __future__ import annotations
@@ -27,14 +30,32 @@ from __future__ import annotations
 import dataclasses
 import itertools
 
-import cvxopt
 import numpy as np
 import scipy.optimize
 
-# Dex-Net's setting: progress output off, cvxopt's default tolerances kept (not tightened).
-cvxopt.solvers.options["show_progress"] = False
+try:
+  import cvxopt  # pylint: disable=g-import-not-at-top
+except ImportError as e:  # the nnls baseline needs only SciPy
+  cvxopt = None
+  CVXOPT_MISSING = f"{type(e).__name__}: {e}"
+else:
+  CVXOPT_MISSING = None
+  # Dex-Net's setting: progress output off, cvxopt's default tolerances kept (not tightened).
+  cvxopt.solvers.options["show_progress"] = False
 
 SOLVERS = ("cvxopt", "nnls")
+
+
+def available_solvers() -> tuple[str, ...]:
+  """The `SOLVERS` whose packages are installed."""
+  return SOLVERS if cvxopt is not None else ("nnls",)
+
+
+def _check_solver(solver: str) -> None:
+  if solver not in SOLVERS:
+    raise ValueError(f"solver: expected one of {SOLVERS}, got {solver!r}")
+  if solver == "cvxopt" and cvxopt is None:
+    raise ModuleNotFoundError(f"the cvxopt baseline needs cvxopt ({CVXOPT_MISSING})")
 
 _CORNERS = np.array(list(itertools.product((0, 1), repeat=3)))
 
@@ -212,8 +233,7 @@ def parallel_jaw_robust(obj, center, axis, approach, width, gripper, pert, cfg, 
   ``solver``: ``'cvxopt'`` or ``'nnls'`` (see the module docstring); ``problems``: a list that collects every
   solved `WrenchProblem`, or None.
   """
-  if solver not in SOLVERS:
-    raise ValueError(f"solver: expected one of {SOLVERS}, got {solver!r}")
+  _check_solver(solver)
   wins = 0
   for _ in range(pert.num_samples):
     c = center + pert.position_sigma * rng.normal(size=3)
@@ -281,8 +301,7 @@ def _ray(obj, origin, v, steps, max_dist):
 
 def suction_robust(obj, center, approach, gripper, pert, cfg, rng, *, solver="cvxopt", problems=None):
   """Robust suction probability of one grasp; ``solver`` and ``problems`` as in `parallel_jaw_robust`."""
-  if solver not in SOLVERS:
-    raise ValueError(f"solver: expected one of {SOLVERS}, got {solver!r}")
+  _check_solver(solver)
   wins = 0
   r, h, n, q = gripper.cup_radius, gripper.cone_height, gripper.num_ring_vertices, gripper.num_edge_subsamples + 1
   for _ in range(pert.num_samples):

@@ -23,7 +23,8 @@ one grasp and one Monte-Carlo sample at a time with NumPy contacts and a cvxopt 
 ``quality_throughput.py``), without the collision and contact tests (generous to the baseline; its sampler
 needs a gravity cone, so gravity is drawn on the sphere instead of fixed). ``label_speedup_ratio`` compares our
 labelling stage's rows/s with it, and ``baseline_rows_per_s`` is the end-to-end rate with the baseline's
-labelling time per row in place of ours.
+labelling time per row in place of ours. Without cvxopt the run is measured all the same: the baseline's figures and
+ratios are null and ``baseline_missing`` says why.
 """
 
 from __future__ import annotations
@@ -98,6 +99,18 @@ def _baseline_seconds_per_row(generator: ShardGenerator, shards: list[tuple[dict
           'targeted_fraction': fraction, 'seconds_per_row': seconds / max(len(pick), 1) * fraction}
 
 
+def _baseline_figures(base: dict | None, rows: int, other_s: float, label_rate: float, rows_per_s: float) -> dict:
+  """The baseline's rates and our ratios over it (``other_s``: our time outside labelling); None without cvxopt."""
+  if base is None:
+    return {'baseline_missing': baseline.CVXOPT_MISSING, 'baseline_label_rows_per_s': None, 'baseline_detail': None,
+            'baseline_rows_per_s': None, 'label_speedup_ratio': None, 'end_to_end_speedup_ratio': None}
+  base_rows_per_s = round(rows / (other_s + rows * base['seconds_per_row']), 2)
+  return {'baseline_label_rows_per_s': round(1.0 / base['seconds_per_row'], 2),
+          'baseline_detail': {k: round(v, 4) for k, v in base.items()}, 'baseline_rows_per_s': base_rows_per_s,
+          'label_speedup_ratio': round(label_rate * base['seconds_per_row'], 1),
+          'end_to_end_speedup_ratio': round(rows_per_s / base_rows_per_s, 1)}
+
+
 def _workers_run(config: GenerateConfig, args, cache: str) -> dict:
   """A fresh process-parallel run of ``workers x (1 + shards)`` shards (each worker compiles once): rows/s over the
   whole run, and the steady rate (each worker's rows/s after its first shard, summed)."""
@@ -157,16 +170,11 @@ def main() -> None:
                   stage_share={k: round(v / wall, 3) for k, v in seconds.items()},
                   positive_rate={name: round(counts['positives'][g] / max(counts['rows'][g], 1), 3)
                                  for g, name in enumerate(('parallel_jaw', 'suction'))})
-    base = _baseline_seconds_per_row(generator, kept, args.baseline_rows)
+    base = None if baseline.CVXOPT_MISSING else _baseline_seconds_per_row(generator, kept, args.baseline_rows)
   label_rate = rows_total / max(seconds['label'], 1e-9)
-  other = wall - seconds['label']
   result['label_rows_per_s'] = round(label_rate, 1)
   result['baseline'] = 'robust probability per row: NumPy contacts + cvxopt QP, one sample at a time (M = 10)'
-  result['baseline_label_rows_per_s'] = round(1.0 / base['seconds_per_row'], 2)
-  result['baseline_detail'] = {k: round(v, 4) for k, v in base.items()}
-  result['baseline_rows_per_s'] = round(rows_total / (other + rows_total * base['seconds_per_row']), 2)
-  result['label_speedup_ratio'] = round(label_rate * base['seconds_per_row'], 1)
-  result['end_to_end_speedup_ratio'] = round(result['rows_per_s'] / result['baseline_rows_per_s'], 1)
+  result.update(_baseline_figures(base, rows_total, wall - seconds['label'], label_rate, result['rows_per_s']))
   best = result['rows_per_s']
   if args.workers > 1:
     result['workers_run'] = _workers_run(config, args, cache)

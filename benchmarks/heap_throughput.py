@@ -44,7 +44,8 @@ is shared and noisy: compare ratios, not absolute figures. ``--no-mjx``: no MJX 
 16); rollout and pybullet at both counts.
 
 Baseline install: ``pip install "pybullet>=3.2"`` (a manylinux wheel for CPython 3.11), or ``pip install
--e ".[bench]"``.
+-e ".[bench]"``. Without pybullet, ``rollout`` is timed alone (same heaps, warm-up and repeats), the ``pybullet``
+entries say ``"status": "missing"`` with the reason and ``ratio_rollout_over_pybullet`` is null.
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ import trimesh
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from _machine import describe  # noqa: E402
+from _optional import import_optional, missing, version  # noqa: E402
 import _pybullet_baseline as pybullet_baseline  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 import dexjax.sim as sim  # pylint: disable=wrong-import-position
@@ -165,8 +167,7 @@ def bench_rollout_and_pybullet(count: int, num_heaps: int, repeats: int, process
   finally:
     pool.close()
   mj_result = results['rollout']
-  rollout = {'heaps': num_heaps, 'threads': os.cpu_count(), 'seconds_median': float(np.median(times['rollout'])),
-             'heaps_per_s': num_heaps / float(np.median(times['rollout'])), **_summary(mj_result)}
+  rollout = _rollout_entry(num_heaps, float(np.median(times['rollout'])), mj_result)
   bullet = {}
   for key in ('pybullet', 'rolling'):
     summary = pybullet_baseline.summary(results[key], settings.bin.inner_size)
@@ -177,6 +178,31 @@ def bench_rollout_and_pybullet(count: int, num_heaps: int, repeats: int, process
                                                                                          mj_result.settled) if ok)),
                    'rollout_over_this_median_ratio': float(np.median(np.array(times[key]) / np.array(times['rollout'])))}
   return rollout, bullet['pybullet'], bullet['rolling'], bullet['pybullet']['rollout_over_this_median_ratio']
+
+
+def bench_rollout(count: int, num_heaps: int, repeats: int) -> dict:
+  """C-engine settling alone (no pybullet): the ``rollout`` entry of `bench_rollout_and_pybullet`."""
+  objs, st = objects(count), states(count, num_heaps)
+  sim.settle(objs, jax.tree.map(lambda x: x[:2], st), backend='rollout')  # warm-up, as beside pybullet
+  seconds, result = _time_rollout(objs, st, repeats)
+  return _rollout_entry(num_heaps, seconds, result)
+
+
+def _rollout_entry(num_heaps: int, seconds: float, result: sim.SettleResult) -> dict:
+  return {'heaps': num_heaps, 'threads': os.cpu_count(), 'seconds_median': seconds,
+          'heaps_per_s': num_heaps / seconds, **_summary(result)}
+
+
+def _pybullet_settings(processes: int) -> dict:
+  """pybullet's engine settings for the report."""
+  return {
+      'mode': 'DIRECT', 'engine_defaults': pybullet_baseline.engine_parameters(),
+      'time_step_s': pybullet_baseline.TIME_STEP, 'max_steps': pybullet_baseline.MAX_STEPS,
+      'linear_speed_tol': pybullet_baseline.LINEAR_TOL, 'angular_speed_tol': pybullet_baseline.ANGULAR_TOL,
+      'gravity': -pybullet_baseline.GRAVITY, 'processes': processes,
+      'chosen': 'gravity; per-object lateralFriction from the heap state, bin and ground 1.0 (Bullet multiplies '
+                'the pair); explicit mass and inertia (principal frame at the centre of mass); everything else '
+                "pybullet's defaults (no rolling/spinning friction, restitution 0)"}
 
 
 def bench_procedural(level: int, num_heaps: int, repeats: int) -> dict:
@@ -237,13 +263,6 @@ def collect_mjx(proc: subprocess.Popen, started: float, batches: list[int], time
   return rows
 
 
-def _version(name: str) -> str | None:
-  try:
-    return __import__('importlib.metadata').metadata.version(name)
-  except Exception:  # pylint: disable=broad-except
-    return None
-
-
 def main() -> None:
   ap = argparse.ArgumentParser()
   ap.add_argument('--quick', action='store_true')
@@ -261,28 +280,26 @@ def main() -> None:
     return
 
   counts = (5, 10)
+  _, no_pybullet = import_optional('pybullet')
   report: dict = {
       'benchmark': 'heap_throughput', 'quick': args.quick,
       'machine': describe(),
       'versions': {'jax': jax.__version__, 'mujoco': __import__('mujoco').__version__,
-                   'pybullet': _version('pybullet')},
+                   'pybullet': version('pybullet')},
       'settings': {k: getattr(sim.SettleSettings(), k) for k in (
           'timestep', 'max_steps', 'linear_speed_tol', 'angular_speed_tol', 'impratio', 'rolling_friction',
           'contact_timeconst', 'sleep', 'sleep_tolerance', 'chunk_steps')},
-      'pybullet_settings': {
-          'mode': 'DIRECT', 'engine_defaults': pybullet_baseline.engine_parameters(),
-          'time_step_s': pybullet_baseline.TIME_STEP, 'max_steps': pybullet_baseline.MAX_STEPS,
-          'linear_speed_tol': pybullet_baseline.LINEAR_TOL, 'angular_speed_tol': pybullet_baseline.ANGULAR_TOL,
-          'gravity': -pybullet_baseline.GRAVITY, 'processes': args.pybullet_processes,
-          'chosen': 'gravity; per-object lateralFriction from the heap state, bin and ground 1.0 (Bullet multiplies '
-                    'the pair); explicit mass and inertia (principal frame at the centre of mass); everything else '
-                    "pybullet's defaults (no rolling/spinning friction, restitution 0)"},
+      'pybullet_settings': missing(no_pybullet) if no_pybullet else _pybullet_settings(args.pybullet_processes),
       'rollout': {}, 'pybullet': {}, 'pybullet_rolling_friction': {}, 'ratio_rollout_over_pybullet': {},
       'rollout_procedural': {}, 'mjx': {},
   }
   for count in counts:
-    rollout, bullet, rolling, ratio = bench_rollout_and_pybullet(count, args.rollout_heaps, args.repeats,
-                                                                 args.pybullet_processes)
+    if no_pybullet:
+      rollout, bullet, rolling, ratio = (bench_rollout(count, args.rollout_heaps, args.repeats), missing(no_pybullet),
+                                         missing(no_pybullet), None)
+    else:
+      rollout, bullet, rolling, ratio = bench_rollout_and_pybullet(count, args.rollout_heaps, args.repeats,
+                                                                   args.pybullet_processes)
     report['rollout'][str(count)] = rollout
     report['pybullet'][str(count)] = bullet
     report['pybullet_rolling_friction'][str(count)] = rolling

@@ -39,6 +39,9 @@ split by `dexjax.quality.split_over_devices`, as `dexjax.quality.evaluate_grasps
 grasps/s at batch 1,000 and 10,000 (median of ``--repeats``), and whether the probabilities equal the one-device
 run's bit for bit.
 
+Without cvxopt, dexjax, the ``nnls`` baseline and the solvers other than cvxopt are measured all the same; the
+cvxopt figures and every ratio against them are null, and ``baseline_missing.cvxopt`` says why.
+
 The machine is shared and noisy: compare ratios measured in the same run, not absolute figures.
 """
 
@@ -52,7 +55,6 @@ import subprocess
 import sys
 import time
 
-import cvxopt
 import jax
 import numpy as np
 import scipy
@@ -60,6 +62,7 @@ import scipy
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from _machine import describe  # noqa: E402
+from _optional import version  # noqa: E402
 
 import _numpy_baseline as baseline  # noqa: E402
 
@@ -109,24 +112,17 @@ def solver_only(problems, repeats: int, batch: int, tol: float) -> dict:
   b = np.stack([p.b for p in problems]).astype(np.float32)
   idx = np.resize(np.arange(len(problems)), batch)
   fn = jax.jit(jax.vmap(lambda aa, bb: nnls(aa, bb).residual))
+  with_cvxopt = baseline.cvxopt is not None
   rates = {"cvxopt_default": [], "cvxopt_tight": [], "scipy_nnls": [], "dexjax_nnls_batched": []}
   residuals = {}
-  defaults = dict(cvxopt.solvers.options)
   a_batch, b_batch = a[idx], b[idx]
   jax.block_until_ready(fn(a_batch, b_batch))  # compile
   for _ in range(repeats):
     t = time.perf_counter()
     jax.block_until_ready(fn(a_batch, b_batch))
     rates["dexjax_nnls_batched"].append(batch / (time.perf_counter() - t))
-    seconds, residuals["cvxopt_default"] = _solve_all(problems, "cvxopt")
-    rates["cvxopt_default"].append(len(problems) / seconds)
-    cvxopt.solvers.options.update(_TIGHT)
-    try:
-      seconds, residuals["cvxopt_tight"] = _solve_all(problems, "cvxopt")
-    finally:
-      cvxopt.solvers.options.clear()
-      cvxopt.solvers.options.update(defaults)
-    rates["cvxopt_tight"].append(len(problems) / seconds)
+    if with_cvxopt:
+      _time_cvxopt(problems, rates, residuals)
     seconds, residuals["scipy_nnls"] = _solve_all(problems, "nnls")
     rates["scipy_nnls"].append(len(problems) / seconds)
   residuals["dexjax_nnls_batched"] = np.asarray(fn(a, b), np.float64)
@@ -134,15 +130,39 @@ def solver_only(problems, repeats: int, batch: int, tol: float) -> dict:
   out = {"problems": len(problems), "shape": list(problems[0].a.shape), "dexjax_batch": batch,
          "positive_fraction_scipy_nnls": round(float(ref.mean()), 4)}
   for key, r in rates.items():
-    out[f"{key}_problems_per_s"] = round(float(np.median(r)), 1)
-  for key, r in residuals.items():
-    if key != "scipy_nnls":
-      out[f"decision_agreement_{key}_vs_scipy_nnls"] = round(float(np.mean((r <= tol) == ref)), 4)
-      out[f"max_abs_residual_diff_{key}_vs_nnls"] = float(np.max(np.abs(r - residuals["scipy_nnls"])))
+    out[f"{key}_problems_per_s"] = round(float(np.median(r)), 1) if r else None
+  for key in rates:
+    r = residuals.get(key)
+    if key != "scipy_nnls":  # None: cvxopt missing
+      agreement = None if r is None else round(float(np.mean((r <= tol) == ref)), 4)
+      out[f"decision_agreement_{key}_vs_scipy_nnls"] = agreement
+      difference = None if r is None else float(np.max(np.abs(r - residuals["scipy_nnls"])))
+      out[f"max_abs_residual_diff_{key}_vs_nnls"] = difference
   for key in ("scipy_nnls", "cvxopt_default"):
-    out[f"dexjax_batched_over_{key}_ratio"] = round(float(np.median(np.array(rates["dexjax_nnls_batched"])
-                                                                    / np.array(rates[key]))), 2)
+    out[f"dexjax_batched_over_{key}_ratio"] = _median_ratio(rates["dexjax_nnls_batched"], rates[key], 2)
   return out
+
+
+def _time_cvxopt(problems, rates: dict, residuals: dict) -> None:
+  """One repeat of cvxopt alone on ``problems``, with its default and with tightened tolerances."""
+  cvxopt = baseline.cvxopt
+  defaults = dict(cvxopt.solvers.options)
+  seconds, residuals["cvxopt_default"] = _solve_all(problems, "cvxopt")
+  rates["cvxopt_default"].append(len(problems) / seconds)
+  cvxopt.solvers.options.update(_TIGHT)
+  try:
+    seconds, residuals["cvxopt_tight"] = _solve_all(problems, "cvxopt")
+  finally:
+    cvxopt.solvers.options.clear()
+    cvxopt.solvers.options.update(defaults)
+  rates["cvxopt_tight"].append(len(problems) / seconds)
+
+
+def _median_ratio(numerator: list, denominator: list, digits: int) -> float | None:
+  """Median of the per-repeat ratios, or None when the denominator was not measured (a missing baseline)."""
+  if not denominator:
+    return None
+  return round(float(np.median(np.array(numerator) / np.array(denominator))), digits)
 
 
 def _setups():
@@ -207,12 +227,15 @@ def main() -> None:
   obj = baseline.NumpyObject(model)
   cfg = QualityConfig()
   result = {"object": args.object, "num_samples": 10, "baseline_grasps": args.baseline_grasps,
-            "repeats": args.repeats, "machine": describe(), "cvxopt": cvxopt.__version__,
+            "repeats": args.repeats, "machine": describe(), "cvxopt": version("cvxopt"),
             "scipy": scipy.__version__,
             "baselines": {
                 "cvxopt": "per grasp and sample: NumPy contacts + cvxopt QP, cvxopt default tolerances, progress "
                           "silenced (Dex-Net's settings)",
                 "nnls": "per grasp and sample: NumPy contacts + the lifted NNLS by scipy.optimize.nnls"}}
+  if baseline.CVXOPT_MISSING:
+    result["baseline_missing"] = {"cvxopt": baseline.CVXOPT_MISSING}
+  solvers = baseline.available_solvers()
   digests = {}
   for name, (gripper, pert, robust, sampler) in _setups().items():
     fn = jax.jit(jax.vmap(lambda k, g: robust(k, model, g, gripper, pert, cfg).probability))
@@ -231,24 +254,25 @@ def main() -> None:
         t = time.perf_counter()
         jax.block_until_ready(fn(*inputs[n]))
         rates[n].append(n / (time.perf_counter() - t))
-      for solver in ("cvxopt", "nnls"):
+      for solver in solvers:
         seconds, p = _baseline_pass(name, obj, batch, m, gripper, pert, cfg, solver, seed=rep,
                                     problems=problems if rep == 0 and solver == "nnls" else None)
         rates[solver].append(m / seconds)
         base_probs[solver].append(p)
     entry = {f"batch_{n}_grasps_per_s": round(float(np.median(rates[n])), 1) for n in (1000, 10000)}
     for solver in ("cvxopt", "nnls"):
-      entry[f"baseline_{solver}_grasps_per_s"] = round(float(np.median(rates[solver])), 2)
+      entry[f"baseline_{solver}_grasps_per_s"] = round(float(np.median(rates[solver])), 2) if rates[solver] else None
       for n in (1000, 10000):
-        entry[f"batch_{n}_over_{solver}_ratio"] = round(
-            float(np.median(np.array(rates[n]) / np.array(rates[solver]))), 1)
-    entry["nnls_over_cvxopt_ratio"] = round(float(np.median(np.array(rates["nnls"]) / np.array(rates["cvxopt"]))), 2)
+        entry[f"batch_{n}_over_{solver}_ratio"] = _median_ratio(rates[n], rates[solver], 1)
+    entry["nnls_over_cvxopt_ratio"] = _median_ratio(rates["nnls"], rates["cvxopt"], 2)
     # Same grasps: dexjax with its own draws, the baselines with theirs (shared between the two).
     entry["mean_probability_dexjax"] = round(float(np.mean(probs[:m])), 3)
     for solver in ("cvxopt", "nnls"):
-      entry[f"mean_probability_baseline_{solver}"] = round(float(np.mean(base_probs[solver])), 3)
+      entry[f"mean_probability_baseline_{solver}"] = (round(float(np.mean(base_probs[solver])), 3)
+                                                      if base_probs[solver] else None)
     entry["grasp_probability_max_abs_diff_cvxopt_vs_nnls"] = round(
-        float(np.max(np.abs(np.concatenate(base_probs["cvxopt"]) - np.concatenate(base_probs["nnls"])))), 3)
+        float(np.max(np.abs(np.concatenate(base_probs["cvxopt"]) - np.concatenate(base_probs["nnls"])))), 3
+    ) if base_probs["cvxopt"] else None
     entry["solver_only"] = solver_only(problems, args.repeats, args.solver_batch, cfg.tolerance)
     result[name] = entry
   if not args.no_devices:

@@ -41,6 +41,10 @@ that MuJoCo's renderer uses, so it is installed without its dependencies):
 (the ``bench`` extra holds pyrender's real dependencies: pyglet < 2, freetype-py, imageio, networkx, six, pillow).
 
 pyrender 0.1.45 still uses ``np.infty`` (removed in NumPy 2); this script restores the alias before import.
+
+Without pyrender (or when its renderer cannot start) the dexjax backends are measured all the same: the child's
+``pyrender`` entry says ``"status": "missing"`` (or ``"failed"``) with the reason, ``baseline_missing`` repeats it
+per platform, and the baseline's figures and every ``*_over_baseline`` ratio are null.
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ import trimesh
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from _machine import describe  # noqa: E402
+from _optional import missing, version  # noqa: E402
 import heap_throughput  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 import dexjax.sim as sim  # pylint: disable=wrong-import-position
@@ -152,6 +157,17 @@ class PyrenderBaseline:
     self.renderer.delete()
 
 
+def start_baseline(width: int, height: int) -> tuple[PyrenderBaseline | None, dict | None]:
+  """(the pyrender baseline, None), or (None, its ``missing`` / ``failed`` entry) without pyrender or its
+  offscreen renderer."""
+  try:
+    return PyrenderBaseline(width, height), None
+  except ImportError as e:
+    return None, missing(f'{type(e).__name__}: {e}')
+  except Exception as e:  # pylint: disable=broad-except  # e.g. no EGL / OSMesa context for pyrender
+    return None, {'status': 'failed', 'error': f'{type(e).__name__}: {e}'}
+
+
 def _agreement(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]) -> dict:
   """Depth and mask agreement of (depth_a, mask_a, depth_b, mask_b) image pairs."""
   diffs, mask_agree, valid_agree = [], [], []
@@ -173,8 +189,10 @@ def bench_backend(backend: str, gl_platform: str | None, args: argparse.Namespac
   """Throughput of one dexjax backend for heaps of 5 and 10 objects; with GL, pyrender on the same platform."""
   renderer = rendering.DepthRenderer(SIZE, SIZE, backend=backend, gl_platform=gl_platform)
   views = cameras(args.images if backend == 'gl' else args.raycast_images)
-  base = PyrenderBaseline(SIZE, SIZE) if backend == 'gl' else None
+  base, base_status = start_baseline(SIZE, SIZE) if backend == 'gl' else (None, None)
   out = {'backend': renderer.backend}
+  if base_status is not None:
+    out['pyrender'] = base_status
   for count in (5, 10):
     mesh_list, ids, result = settled_heaps(count, args.heaps)
     builds, firsts, rates, objects = [], [], [], []
@@ -237,13 +255,6 @@ def _child(gl_platform: str, args: argparse.Namespace) -> dict:
   return json.loads(run.stdout.strip().splitlines()[-1])
 
 
-def _version(name: str) -> str | None:
-  try:
-    return __import__('importlib.metadata').metadata.version(name)
-  except Exception:  # pylint: disable=broad-except
-    return None
-
-
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--images', type=int, default=30)
@@ -257,30 +268,34 @@ def main() -> None:
     return
   out = {'image_size': [SIZE, SIZE], 'machine': describe(),
          'jax_backend': jax.default_backend(),
-         'versions': {k: _version(k) for k in ('pyrender', 'PyOpenGL', 'pyglet', 'mujoco', 'trimesh', 'numpy')},
+         'versions': {k: version(k) for k in ('pyrender', 'PyOpenGL', 'pyglet', 'mujoco', 'trimesh', 'numpy')},
          'baseline': 'pyrender OffscreenRenderer, one RenderFlags.SEG pass per image (depth + segmentation colours '
                      'decoded to the mask), same heaps, meshes, cameras and size, scenes built before timing'}
   backends = {f'gl_{p}': _child(p, args) for p in ('egl', 'osmesa')}
   backends['raycast'] = bench_backend('raycast', None, args)
+  without = {p: backends[f'gl_{p}']['pyrender']['error'] for p in ('egl', 'osmesa')
+             if 'pyrender' in backends[f'gl_{p}']}
+  if without:
+    out['baseline_missing'] = without
   for count in (5, 10):
     base_rates = {}
     for p in ('egl', 'osmesa'):
       res = backends[f'gl_{p}'].get(f'pyrender_objects_{count}')
       if res is not None:
         base_rates[p] = res['images_per_s']
-        out[f'pyrender_{p}_{count}_objects_images_per_s'] = res['images_per_s']
-    if base_rates:
-      out[f'baseline_{count}_objects_images_per_s'] = max(base_rates.values())
+      out[f'pyrender_{p}_{count}_objects_images_per_s'] = None if res is None else res['images_per_s']
+    out[f'baseline_{count}_objects_images_per_s'] = max(base_rates.values()) if base_rates else None
     for name, res in backends.items():
       if f'objects_{count}' not in res:
         continue
       out[f'{name}_{count}_objects_images_per_s'] = res[f'objects_{count}']['images_per_s']
-      if name.startswith('gl_') and f'pyrender_objects_{count}' in res:
-        out[f'{name}_{count}_objects_over_baseline'] = res[f'pyrender_objects_{count}'][
-            'dexjax_over_pyrender_median_pass_ratio']
+      ratio = None
+      if name.startswith('gl_'):
+        if f'pyrender_objects_{count}' in res:
+          ratio = res[f'pyrender_objects_{count}']['dexjax_over_pyrender_median_pass_ratio']
       elif base_rates:
-        out[f'{name}_{count}_objects_over_baseline'] = (res[f'objects_{count}']['images_per_s']
-                                                        / max(base_rates.values()))
+        ratio = res[f'objects_{count}']['images_per_s'] / max(base_rates.values())
+      out[f'{name}_{count}_objects_over_baseline'] = ratio
     for p in ('egl', 'osmesa'):
       agreement = backends[f'gl_{p}'].get(f'agreement_{count}_objects')
       if agreement is not None:

@@ -16,7 +16,11 @@ Everything else lives in its subpackage, each with a deliberate ``__all__``:
 * `dexjax.data` -- dataset shards, manifest and the streaming loader;
 * `dexjax.generate` -- dataset generation (``python -m dexjax.generate``);
 * `dexjax.models` -- Flax GQ-CNNs, normalisation, saved models;
-* `dexjax.train` -- GQ-CNN training (``python -m dexjax.train``).
+* `dexjax.train` -- GQ-CNN training (``python -m dexjax.train``);
+* `dexjax.policy` -- grasping policies on a depth image: CEM, ranking, heuristics, ambidextrous
+  (``python -m dexjax.plan``);
+* `dexjax.bench` -- the Universal Picking benchmark in simulation: the bin, the judges, trials and the runner
+  (``python -m dexjax.benchmark``).
 
 `dexjax.generate`, `dexjax.models` and `dexjax.train` (Flax, optax, orbax) are imported on first use.
 """
