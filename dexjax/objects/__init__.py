@@ -6,11 +6,13 @@ Specs: ``'builtin:NAME'``, ``'procedural:L{level}/{index}[@{seed}]'`` or a mesh 
 from dexjax.objects.builtin import BUILTIN_OBJECTS
 from dexjax.objects.builtin import BUILTIN_PREFIX
 from dexjax.objects.builtin import builtin_mesh
+from dexjax.objects.builtin import check_object_spec
 from dexjax.objects.builtin import load_object_model
 from dexjax.objects.builtin import resolve_mesh
 from dexjax.objects.procedural import MAX_EXTENT
 from dexjax.objects.procedural import MAX_FACES
 from dexjax.objects.procedural import MAX_MASS
+from dexjax.objects.procedural import MAX_RANGE_COUNT
 from dexjax.objects.procedural import MIN_MASS
 from dexjax.objects.procedural import MIN_EXTENT
 from dexjax.objects.procedural import PROCEDURAL_LEVELS
@@ -36,18 +38,20 @@ from dexjax.objects.folder import PreparedObject
 from dexjax.objects.folder import Rejection
 from dexjax.objects.folder import load_mesh_folder
 from dexjax.objects.folder import prepare_object
+from dexjax.objects.sets import check_object_sources
 from dexjax.objects.sets import expand_object_sources
 from dexjax.objects.sets import load_object_set
 from dexjax.objects.sets import prepare_object_set
 
 __all__ = [
-    "BUILTIN_OBJECTS", "BUILTIN_PREFIX", "builtin_mesh", "load_object_model", "resolve_mesh",
-    "MAX_EXTENT", "MAX_FACES", "MAX_MASS", "MIN_EXTENT", "MIN_MASS", "PROCEDURAL_LEVELS", "PROCEDURAL_PREFIX", "PROCEDURAL_VERSION",
+    "BUILTIN_OBJECTS", "BUILTIN_PREFIX", "builtin_mesh", "check_object_spec", "load_object_model", "resolve_mesh",
+    "MAX_EXTENT", "MAX_FACES", "MAX_MASS", "MAX_RANGE_COUNT", "MIN_EXTENT", "MIN_MASS", "PROCEDURAL_LEVELS",
+    "PROCEDURAL_PREFIX", "PROCEDURAL_VERSION",
     "parse_procedural_spec", "procedural_families", "procedural_material", "procedural_mesh",
     "procedural_mesh_problems", "procedural_params", "procedural_spec", "procedural_specs", "Material",
     "CONVEX_SOLIDITY", "HullSettings", "cached_collision_hulls", "collision_hulls", "hulls_cache_key",
     "FolderReport", "LoadedObject", "PreparedObject", "Rejection", "load_mesh_folder", "prepare_object",
-    "expand_object_sources", "load_object_set", "prepare_object_set",
+    "check_object_sources", "expand_object_sources", "load_object_set", "prepare_object_set",
     "save_contact_sheet", "ObjectMass", "object_masses", "mass_summary", "prior_summary",
 ]
 

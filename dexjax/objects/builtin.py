@@ -28,9 +28,10 @@ import numpy as np
 import trimesh
 
 from dexjax.geometry.cache import cached_object_model
-from dexjax.geometry.mesh_io import load_mesh
+from dexjax.geometry.mesh_io import SUPPORTED_EXTENSIONS, MeshError, load_mesh
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.objects.procedural import PROCEDURAL_PREFIX
+from dexjax.objects.procedural import parse_procedural_spec
 from dexjax.objects.procedural import procedural_spec_mesh
 
 BUILTIN_PREFIX: str = 'builtin:'
@@ -175,11 +176,36 @@ def builtin_mesh(name: str) -> trimesh.Trimesh:
   Raises:
     ValueError: unknown name; the message lists the available ones.
   """
-  if name not in _BUILDERS:
-    raise ValueError(
-        f"dexjax/objects/builtin.py: unknown builtin object {name!r}; available: {', '.join(BUILTIN_OBJECTS)}")
+  _check_builtin_name(name)
   vertices, faces = _builtin_arrays(name)
   return trimesh.Trimesh(vertices=vertices.copy(), faces=faces.copy(), process=False)
+
+
+def _check_builtin_name(name: str) -> None:
+  """Raises ValueError listing the valid ``builtin:NAME`` specs unless ``name`` is one of `BUILTIN_OBJECTS`."""
+  if name not in _BUILDERS:
+    shown = name if len(name) <= 100 else f'{name[:80]}...({len(name)} characters)'
+    raise ValueError(f"unknown builtin object {shown!r}; expected one of "
+                     f"{', '.join(BUILTIN_PREFIX + n for n in BUILTIN_OBJECTS)}")
+
+
+def check_object_spec(spec: str | os.PathLike[str]) -> None:
+  """Checks an object spec without building anything (for a command, before any computing): a known built-in
+  name, a well-formed procedural spec, or a path that is a regular file (`mesh_path_problem`).
+
+  Raises:
+    ValueError: an unknown built-in name (listing the valid ones) or a malformed procedural spec.
+    MeshError: the path does not exist, is a folder or is not a regular file.
+  """
+  spec = os.fspath(spec)
+  if spec.startswith(BUILTIN_PREFIX):
+    _check_builtin_name(spec[len(BUILTIN_PREFIX):])
+  elif spec.startswith(PROCEDURAL_PREFIX):
+    parse_procedural_spec(spec)
+  else:
+    problem = mesh_path_problem(spec)
+    if problem is not None:
+      raise MeshError(spec, problem)
 
 
 def resolve_mesh(spec: str | os.PathLike[str], *, scale: float = 1.0) -> tuple[trimesh.Trimesh, str]:
@@ -196,7 +222,8 @@ def resolve_mesh(spec: str | os.PathLike[str], *, scale: float = 1.0) -> tuple[t
 
   Raises:
     ValueError: unknown builtin name, malformed procedural spec or a bad scale.
-    MeshError: the file cannot be loaded or repaired.
+    MeshError: the path does not exist, is a folder or not a regular file (`mesh_path_problem`), or the file
+      cannot be loaded or repaired.
   """
   spec = os.fspath(spec)
   if isinstance(spec, str) and spec.startswith((BUILTIN_PREFIX, PROCEDURAL_PREFIX)):
@@ -209,7 +236,27 @@ def resolve_mesh(spec: str | os.PathLike[str], *, scale: float = 1.0) -> tuple[t
     if scale != 1.0:
       mesh.apply_scale(scale)
     return mesh, spec
+  check_object_spec(spec)
   return load_mesh(spec, scale=scale), str(spec)
+
+
+def mesh_path_problem(path: str | os.PathLike[str], *, folder_ok: bool = False) -> str | None:
+  """What is wrong with ``path`` as a mesh source, in words without the path (None: nothing found wrong).
+
+  Checked before the file's extension, so that a missing path or a folder is not reported as an unsupported
+  extension: the path must exist (a dangling link does not), be a regular file (not a device such as
+  ``/dev/null``, a pipe or a socket) or, with ``folder_ok``, a folder.
+  """
+  path = os.fspath(path)
+  expected = f"expected a mesh file ({', '.join(SUPPORTED_EXTENSIONS)})"
+  expected += ' or a folder of them' if folder_ok else ''
+  if not os.path.exists(path):
+    return f'file not found: the path does not exist; {expected}'
+  if os.path.isdir(path):
+    return None if folder_ok else f'is a folder, {expected} (or builtin:NAME)'
+  if not os.path.isfile(path):
+    return f'is not a regular file (a device, pipe or socket); {expected}'
+  return None
 
 
 def load_object_model(

@@ -49,7 +49,8 @@ from dexjax.objects.procedural_solids import LEVEL1_FAMILIES
 from dexjax.objects.procedural_solids import LEVEL1_MIN_THICKNESS
 
 __all__ = [
-    'PROCEDURAL_PREFIX', 'PROCEDURAL_LEVELS', 'PROCEDURAL_VERSION', 'MIN_EXTENT', 'MAX_EXTENT', 'MAX_FACES', 'MAX_MASS', 'MIN_MASS',
+    'PROCEDURAL_PREFIX', 'PROCEDURAL_LEVELS', 'PROCEDURAL_VERSION', 'MAX_RANGE_COUNT', 'MIN_EXTENT', 'MAX_EXTENT',
+    'MAX_FACES', 'MAX_MASS', 'MIN_MASS',
     'procedural_families', 'procedural_material', 'procedural_params', 'procedural_mesh', 'procedural_spec',
     'procedural_specs', 'parse_procedural_spec', 'procedural_spec_mesh', 'procedural_mesh_problems',
 ]
@@ -65,6 +66,11 @@ PROCEDURAL_VERSION: int = 4
 fingerprint (`dexjax.generate.fingerprint`) includes it and no run resumes with other objects. 2: level 1 of
 household size with masses from materials (2026-12-05); 3: level-1 round solids >= 4 cm across (2026-12-06);
 4: level-1 flat faces >= the cup (rounded boxes' flats, prisms of 4 or 6 faces; 2026-12-06)."""
+
+MAX_RANGE_COUNT: int = 100_000
+"""Most objects one procedural range (``'procedural:L1/0:100000'``) or `procedural_specs` call may name: a larger
+count is refused before any work (preparing 100,000 objects already takes days; a typo such as
+``'procedural:L1/0:99999999999'`` would otherwise fill the memory with spec strings)."""
 
 MIN_EXTENT: float = SIZE_RANGE[0]
 """Smallest allowed largest extent of a procedural object, metres (0.06)."""
@@ -159,9 +165,12 @@ def procedural_spec(level: int, index: int, seed: int = 0) -> str:
 
 
 def procedural_specs(level: int, count: int, seed: int = 0) -> list[str]:
-  """Specs of objects 0 .. count-1 of ``level`` (a set covering every family of the level in turn)."""
+  """Specs of objects 0 .. count-1 of ``level`` (a set covering every family of the level in turn); ``count`` is at
+  most `MAX_RANGE_COUNT`."""
   if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
     raise ValueError(f'procedural_specs: count must be an integer >= 0, got {count!r}')
+  if count > MAX_RANGE_COUNT:
+    raise ValueError(f'procedural_specs: count must be at most MAX_RANGE_COUNT = {MAX_RANGE_COUNT}, got {count}')
   return [procedural_spec(level, index, seed) for index in range(int(count))]
 
 
@@ -174,11 +183,23 @@ def parse_procedural_spec(spec: str) -> tuple[int, int, int]:
   """
   body = spec[len(PROCEDURAL_PREFIX):] if isinstance(spec, str) and spec.startswith(PROCEDURAL_PREFIX) else None
   match = _SPEC_PATTERN.fullmatch(body) if body is not None else None
-  if match is None or int(match.group(1)) not in PROCEDURAL_LEVELS:
+  numbers = spec_integers(match.groups()) if match is not None else None
+  if numbers is None or numbers[0] not in PROCEDURAL_LEVELS:
+    shown = spec if not isinstance(spec, str) or len(spec) <= 80 else f'{spec[:60]}...({len(spec)} characters)'
     raise ValueError(
-        f'object spec {spec!r}: expected {_SPEC_FORM} with level 1, 2 or 3 and integers index >= 0 and '
+        f'object spec {shown!r}: expected {_SPEC_FORM} with level 1, 2 or 3 and integers index >= 0 and '
         "seed >= 0 (e.g. 'procedural:L2/17@3')")
-  return int(match.group(1)), int(match.group(2)), int(match.group(3) or 0)
+  level, index, seed = numbers
+  return level, index, seed or 0
+
+
+def spec_integers(groups: tuple[str | None, ...]) -> tuple[int | None, ...] | None:
+  """The integers of a spec's matched digit groups (None for an absent group), or None when one is too long for
+  Python to convert (over 4,300 digits: `sys.get_int_max_str_digits`), so that the caller reports the spec."""
+  try:
+    return tuple(None if g is None else int(g) for g in groups)
+  except ValueError:
+    return None
 
 
 def procedural_spec_mesh(spec: str) -> trimesh.Trimesh:

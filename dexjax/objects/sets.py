@@ -8,7 +8,8 @@ A set is described by a list of *sources*, each one of:
   generation;
 * ``'procedural:L{level}/{index}[@{seed}]'`` (one procedural object) or
   ``'procedural:L{level}/{start}:{stop}[@{seed}]'`` (objects start .. stop-1 of a level, Python slice
-  semantics, e.g. ``'procedural:L2/0:1000'``);
+  semantics, e.g. ``'procedural:L2/0:1000'``; at most `MAX_RANGE_COUNT` (100,000) objects per range and in
+  the whole expanded set, checked before any spec is listed);
 * a mesh file (OBJ, STL, PLY, GLB, OFF) or a directory of them (see `load_mesh_folder`).
 
 `load_object_set` resolves the sources into one `FolderReport`: every object that loaded, and every file
@@ -26,14 +27,18 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from dexjax.geometry.mesh_io import MeshError
-from dexjax.objects.builtin import BUILTIN_OBJECTS, BUILTIN_PREFIX, resolve_mesh
+from dexjax.objects.builtin import BUILTIN_OBJECTS, BUILTIN_PREFIX, mesh_path_problem, resolve_mesh
 from dexjax.objects.folder import (FolderReport, LoadedObject, PreparedObject, Rejection, emit_warnings,
                                   load_mesh_folder)
 from dexjax.objects.folder import load_file, prepare_object
-from dexjax.objects.procedural import PROCEDURAL_LEVELS, PROCEDURAL_PREFIX, procedural_spec
+from dexjax.objects.procedural import (MAX_RANGE_COUNT, PROCEDURAL_LEVELS, PROCEDURAL_PREFIX, procedural_spec,
+                                      spec_integers)
 
 #: Objects in each built-in level set ``'builtin:level{1,2,3}'``.
 LEVEL_SET_SIZE = 100
+#: The ``builtin:`` sources that name a set of objects rather than one object.
+BUILTIN_SETS: tuple[str, ...] = (f'{BUILTIN_PREFIX}all',
+                                 *(f'{BUILTIN_PREFIX}level{level}' for level in PROCEDURAL_LEVELS))
 _RANGE_PATTERN = re.compile(r'L([0-9])/(0|[1-9][0-9]*):(0|[1-9][0-9]*)(?:@(0|[1-9][0-9]*))?')
 
 
@@ -48,30 +53,72 @@ def expand_object_sources(sources: Iterable[str | os.PathLike[str]]) -> list[str
     ``['procedural:L1/0', 'procedural:L1/1', 'procedural:L1/2']``).
 
   Raises:
-    ValueError: a malformed procedural range (the message names the source and the expected form).
+    ValueError: a malformed procedural range, or one (or the whole expanded set) of more than `MAX_RANGE_COUNT`
+      objects (the message names the source and the expected form or the limit; checked before listing).
   """
   expanded = []
   for source in sources:
     source = os.fspath(source)
-    if source == f'{BUILTIN_PREFIX}all':
-      expanded.extend(f'{BUILTIN_PREFIX}{name}' for name in BUILTIN_OBJECTS)
-    elif source in tuple(f'{BUILTIN_PREFIX}level{level}' for level in PROCEDURAL_LEVELS):
-      expanded.extend(_procedural_range(f'{PROCEDURAL_PREFIX}L{source[-1]}/0:{LEVEL_SET_SIZE}'))
+    if source == BUILTIN_SETS[0]:
+      members = [f'{BUILTIN_PREFIX}{name}' for name in BUILTIN_OBJECTS]
+    elif source in BUILTIN_SETS:
+      members = _procedural_range(f'{PROCEDURAL_PREFIX}L{source[-1]}/0:{LEVEL_SET_SIZE}', len(expanded))
     elif source.startswith(PROCEDURAL_PREFIX) and ':' in source[len(PROCEDURAL_PREFIX):]:
-      expanded.extend(_procedural_range(source))
+      members = _procedural_range(source, len(expanded))
     else:
-      expanded.append(source)
+      members = [source]
+    _check_count(source, len(members), len(expanded))  # ranges were checked before their specs were listed
+    expanded.extend(members)
   return expanded
 
 
-def _procedural_range(source: str) -> list[str]:
-  """The specs of a ``'procedural:L{level}/{start}:{stop}[@{seed}]'`` range."""
+def _procedural_range(source: str, listed: int = 0) -> list[str]:
+  """The specs of a ``'procedural:L{level}/{start}:{stop}[@{seed}]'`` range, after ``listed`` objects of the set;
+  its size is checked against `MAX_RANGE_COUNT` before any spec is made."""
   match = _RANGE_PATTERN.fullmatch(source[len(PROCEDURAL_PREFIX):])
-  if match is None or int(match.group(1)) not in PROCEDURAL_LEVELS or int(match.group(3)) < int(match.group(2)):
-    raise ValueError(f"object source {source!r}: expected 'procedural:L{{level}}/{{start}}:{{stop}}[@{{seed}}]' "
-                     "with level 1, 2 or 3 and integers 0 <= start <= stop (e.g. 'procedural:L2/0:1000')")
-  level, start, stop, seed = int(match.group(1)), int(match.group(2)), int(match.group(3)), int(match.group(4) or 0)
-  return [procedural_spec(level, index, seed) for index in range(start, stop)]
+  numbers = spec_integers(match.groups()) if match is not None else None
+  if numbers is None or numbers[0] not in PROCEDURAL_LEVELS or numbers[2] < numbers[1]:
+    raise ValueError(f"object source {_shown(source)!r}: expected "
+                     "'procedural:L{level}/{start}:{stop}[@{seed}]' with level 1, 2 or 3 and integers "
+                     "0 <= start <= stop (e.g. 'procedural:L2/0:1000')")
+  level, start, stop, seed = numbers
+  _check_count(source, stop - start, listed)
+  return [procedural_spec(level, index, seed or 0) for index in range(start, stop)]
+
+
+def _check_count(source: str, count: int, listed: int) -> None:
+  """Refuses a source of ``count`` objects, or one that would grow the set past `MAX_RANGE_COUNT`."""
+  if count > MAX_RANGE_COUNT:
+    shown = f'{count}' if count < 10**15 else f'about 10^{len(str(count)) - 1}'
+    raise ValueError(f'object source {_shown(source)!r}: names {shown} objects; expected at most {MAX_RANGE_COUNT} '
+                     'per range (MAX_RANGE_COUNT; split the work into several runs)')
+  if listed + count > MAX_RANGE_COUNT:
+    raise ValueError(f'object source {_shown(source)!r}: brings the set to {listed + count} objects; expected at '
+                     f'most {MAX_RANGE_COUNT} in one set (MAX_RANGE_COUNT; split the work into several runs)')
+
+
+def _shown(source: str) -> str:
+  """``source`` for a message: cut to its first 150 characters (and its length) when longer than 200."""
+  return source if len(source) <= 200 else f'{source[:150]}...({len(source)} characters)'
+
+
+def check_object_sources(sources: Iterable[str | os.PathLike[str]]) -> list[str]:
+  """Checks, before any object is built, what can be checked of a set's sources; returns them expanded.
+
+  Procedural ranges must be well formed and of at most `MAX_RANGE_COUNT` objects (`expand_object_sources`), and
+  every source that is not a ``builtin:`` or ``procedural:`` spec must be an existing mesh file or folder.
+  (Unknown built-in names and broken files are left to `load_object_set`, which rejects them one by one.)
+
+  Raises:
+    ValueError: naming the source and what is wrong (``does not exist``, ``is not a regular file``, ...).
+  """
+  expanded = expand_object_sources(sources)
+  for source in expanded:
+    if not source.startswith((BUILTIN_PREFIX, PROCEDURAL_PREFIX)):
+      problem = mesh_path_problem(source, folder_ok=True)
+      if problem is not None:
+        raise ValueError(f'object source {_shown(source)!r}: {problem}')
+  return expanded
 
 
 def load_object_set(sources: Iterable[str | os.PathLike[str]], *, scale: float = 1.0,
@@ -94,32 +141,49 @@ def load_object_set(sources: Iterable[str | os.PathLike[str]], *, scale: float =
     ImperfectMeshWarning, ScaleWarning: recorded while loading a file (also kept in `LoadedObject.warnings`).
 
   Raises:
-    ValueError: ``scale`` is not a finite number > 0, or a procedural range is malformed (a mistake in the
-      set's description rather than in one object).
+    ValueError: ``scale`` is not a finite number > 0, or a procedural range is malformed or names more than
+      `MAX_RANGE_COUNT` objects (a mistake in the set's description rather than in one object). A path that does
+      not exist or is not a regular file or folder is rejected (``'file not found: ... does not exist'``); see
+      `check_object_sources` to refuse it instead.
   """
   if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (0 < scale < float('inf')):
     raise ValueError(f'load_object_set: scale: expected a finite number > 0, got {scale!r}')
   loaded: list[LoadedObject] = []
   rejected: list[Rejection] = []
   for source in expand_object_sources(sources):
-    if source.startswith((BUILTIN_PREFIX, PROCEDURAL_PREFIX)):
-      try:
-        mesh, name = resolve_mesh(source)
-      except (ValueError, MeshError) as e:
-        rejected.append(Rejection(source, str(e)))
-      else:
-        loaded.append(LoadedObject(name=name, path=source, mesh=mesh))
-    elif os.path.isdir(source):
-      report = load_mesh_folder(source, scale=scale, recursive=recursive)
-      folder = os.path.basename(os.path.normpath(source))
-      loaded.extend(LoadedObject(name=f'{folder}/{o.name}', path=o.path, mesh=o.mesh, warnings=o.warnings)
-                    for o in report.loaded)
-      rejected.extend(Rejection(os.path.join(source, r.file), r.reason) for r in report.rejected)
-    else:
-      outcome = load_file(source, name=os.path.splitext(os.path.basename(source))[0], label=source, scale=scale)
-      (loaded if isinstance(outcome, LoadedObject) else rejected).append(outcome)
+    objects, problems = _load_source(source, scale=scale, recursive=recursive)
+    loaded.extend(objects)
+    rejected.extend(problems)
   emit_warnings(loaded)
   return FolderReport(loaded=_unique(loaded, rejected), rejected=rejected)
+
+
+def _load_source(source: str, *, scale: float, recursive: bool) -> tuple[list[LoadedObject], list[Rejection]]:
+  """(loaded, rejected) of one expanded source: a built-in or procedural spec, a mesh file or a folder."""
+  if source.startswith((BUILTIN_PREFIX, PROCEDURAL_PREFIX)):
+    try:
+      mesh, name = resolve_mesh(source)
+    except (ValueError, MeshError) as e:
+      return [], [Rejection(source, _spec_reason(source, e))]
+    return [LoadedObject(name=name, path=source, mesh=mesh)], []
+  problem = mesh_path_problem(source, folder_ok=True)
+  if problem is not None:
+    return [], [Rejection(source, problem)]
+  if os.path.isdir(source):
+    report = load_mesh_folder(source, scale=scale, recursive=recursive)
+    folder = os.path.basename(os.path.normpath(source))
+    return ([LoadedObject(name=f'{folder}/{o.name}', path=o.path, mesh=o.mesh, warnings=o.warnings)
+             for o in report.loaded],
+            [Rejection(os.path.join(source, r.file), r.reason) for r in report.rejected])
+  outcome = load_file(source, name=os.path.splitext(os.path.basename(source))[0], label=source, scale=scale)
+  return ([outcome], []) if isinstance(outcome, LoadedObject) else ([], [outcome])
+
+
+def _spec_reason(source: str, error: Exception) -> str:
+  """Why a spec was rejected; for an unknown ``builtin:`` name, the set names are listed with the objects."""
+  if source.startswith(BUILTIN_PREFIX) and source[len(BUILTIN_PREFIX):] not in BUILTIN_OBJECTS:
+    return f'{error}; or a set: {", ".join(BUILTIN_SETS)}'
+  return str(error)
 
 
 def _unique(loaded: Sequence[LoadedObject], rejected: list[Rejection]) -> list[LoadedObject]:

@@ -6,6 +6,8 @@
 MESH is a mesh file (OBJ, STL, PLY, GLB, OFF) or a built-in object such as ``builtin:box``. Exit code 0 on
 success, 1 when no valid grasp could be sampled (nothing is written), 2 for bad input (docs/errors.md); OUT is
 checked before any computing and an existing file is only replaced if it is an earlier report (or --overwrite).
+Given grasps are checked: JSON numbers (no booleans) of magnitude <= 1000, a width within the gripper's
+[min_width, max_width], a center within 10 m of the object. The report is strict JSON (NaN written as null).
 """
 
 from __future__ import annotations
@@ -20,10 +22,12 @@ import time
 import jax
 
 from dexjax.cli import FAILURE_EXIT, add_overwrite_flag, atomic_write, check_output_file, command, owned_json
+from dexjax.config import plain_json
 from dexjax.objects import load_object_model
+from dexjax.objects.builtin import check_object_spec
 from dexjax.quality.grasp_json import GraspFileError, load_grasp_json
-from dexjax.quality.report import (ReportSettings, evaluate_report, load_settings, object_summary,
-                                   read_grasp_file, report_parameters, sample_grasps)
+from dexjax.quality.report import (ReportSettings, check_grasps_near_object, evaluate_report, load_settings,
+                                   object_summary, read_grasp_file, report_parameters, sample_grasps)
 
 #: Top-level keys of a report: an existing file with all of them is this command's own output (replaced freely).
 REPORT_KEYS = ('object', 'parameters', 'grasps')
@@ -64,10 +68,16 @@ def _check_arguments(args: argparse.Namespace) -> None:
       raise ValueError(f"{option}: expected {expected}, got {value}")
 
 
+def _strict_json(report: dict) -> str:
+  """The report as strict JSON: NaN and infinities (which JSON lacks) become null."""
+  return json.dumps(plain_json(report, nan_to_none=True), indent=1, allow_nan=False)
+
+
 @command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
   _check_arguments(args)
+  check_object_spec(args.mesh)
   out_path = check_output_file(args.out, owned=owned_json(*REPORT_KEYS), overwrite=args.overwrite)
   settings = load_settings(args.config) if args.config else ReportSettings()
   overrides = {k: v for k, v in (("num_samples", args.samples), ("threshold", args.threshold)) if v is not None}
@@ -78,6 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     if not grasps:
       raise GraspFileError(f"{args.grasps}: 'grasps' is empty; expected at least one grasp")
   model = load_object_model(args.mesh, scale=args.scale, grid_size=args.grid_size)
+  if grasps is not None:
+    check_grasps_near_object(grasps, model.bounds, args.grasps)
   key = jax.random.key(args.seed)
   start = time.perf_counter()
   if grasps is None:
@@ -94,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
   grippers = sorted({g for g, _ in grasps})
   report = {"object": object_summary(model, args.mesh), "parameters": report_parameters(settings, args.seed, grippers),
             "grasps": records}
-  atomic_write(out_path, lambda f: f.write(json.dumps(report, indent=1).encode("utf-8")))
+  atomic_write(out_path, lambda f: f.write(_strict_json(report).encode("utf-8")))
   robust = sum(r["robust"] for r in records)
   print(f"{len(records)} grasps on {args.mesh}: {robust} robust (p > {settings.threshold}); "
         f"{time.perf_counter() - start:.1f} s; wrote {args.out}")

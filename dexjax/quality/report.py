@@ -6,6 +6,7 @@ This is the library side of ``python -m dexjax.quality``; the CLI only parses ar
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from typing import Any
 
@@ -18,7 +19,8 @@ from dexjax.geometry.object_model import ObjectModel
 from dexjax.grasps import parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.batched import evaluate_grasps
-from dexjax.quality.grasp_json import grasp_record, parse_grasps, stack_parallel_jaw, stack_suction
+from dexjax.quality.grasp_json import (GraspFileError, grasp_record, parse_grasps, stack_parallel_jaw,
+                                       stack_suction)
 from dexjax.quality.grasp_quality import FAILURE_REASONS, QualityConfig
 from dexjax.quality.robust import Perturbations, parallel_jaw_perturbations, suction_perturbations
 from dexjax.sampling.object_samplers import AntipodalSampler, sample_antipodal_grasps, sample_suction_grasps
@@ -27,6 +29,17 @@ _sample_pj = jax.jit(sample_antipodal_grasps, static_argnums=2)
 _sample_suction = jax.jit(sample_suction_grasps, static_argnums=2)
 _pj_pose = jax.jit(jax.vmap(parallel_jaw_pose))
 _suction_pose = jax.jit(jax.vmap(suction_pose))
+
+MAX_GRASP_VALUE: float = 1000.0
+"""Largest magnitude of any number in a grasp file (metres for ``center`` and ``width``; directions are normalised,
+so their scale is free within it). Beyond it the file is not in metres, and float32 (the solver's precision) no
+longer resolves 0.1 mm."""
+
+MAX_GRASP_DISTANCE: float = 10.0
+"""Farthest a grasp ``center`` may lie from the object's bounding box, metres: farther, the grasp cannot touch the
+object and the file is most likely in other units or another frame."""
+
+_NUMERIC_FIELDS = ("center", "approach", "axis", "width")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,8 +169,90 @@ def evaluate_report(key: jax.Array, model: ObjectModel, grasps: list[tuple[str, 
 
 
 def read_grasp_file(data: Any, source: str, settings: ReportSettings = ReportSettings()):
-  """Parses a decoded grasp JSON document (see `dexjax.quality.grasp_json`)."""
-  return parse_grasps(data, source, default_width=settings.parallel_jaw.max_width)
+  """Parses a decoded grasp JSON document (see `dexjax.quality.grasp_json`) and checks its values.
+
+  Every number of ``center``, ``approach``, ``axis`` and ``width`` must be a JSON number (not a boolean, not a
+  string), finite and at most `MAX_GRASP_VALUE` in magnitude; a parallel-jaw ``width`` must lie in the gripper's
+  [``min_width``, ``max_width``] (``settings.parallel_jaw``). See `check_grasps_near_object` for the distance to
+  the object, which needs the object.
+
+  Returns:
+    One ``(gripper, fields)`` per grasp in file order (`dexjax.quality.grasp_json.parse_grasps`).
+
+  Raises:
+    GraspFileError: naming the file, the grasp index, the field and the expected value.
+  """
+  _check_numbers(data, source)
+  grasps = parse_grasps(data, source, default_width=settings.parallel_jaw.max_width)
+  _check_widths(grasps, source, settings.parallel_jaw)
+  return grasps
+
+
+def _check_numbers(data: Any, source: str) -> None:
+  """Checks the numbers of each grasp's numeric fields before they are converted (where ``true`` would become 1.0
+  and 1e400 an overflow); the structure (a list of 3 numbers, ...) is `parse_grasps`'s to check."""
+  if not isinstance(data, dict) or not isinstance(data.get("grasps"), list):
+    return
+  for i, entry in enumerate(data["grasps"]):
+    if not isinstance(entry, dict):
+      continue
+    for field in _NUMERIC_FIELDS:
+      value = entry.get(field)
+      items = value if isinstance(value, list) else [value] if isinstance(value, (bool, int, float)) else []
+      for item in items:
+        problem = _number_problem(item)
+        if problem is not None:
+          raise GraspFileError(f"{source}: grasps[{i}]: field '{field}' {problem}")
+
+
+def _number_problem(item: Any) -> str | None:
+  """What is wrong with one number of a grasp field, in words (None: a plausible number; nested lists pass)."""
+  if isinstance(item, bool):
+    return f"holds the boolean {str(item).lower()}; expected a number"
+  if isinstance(item, str):
+    return f"holds the string {item[:40]!r}; expected a number"
+  if not isinstance(item, (int, float)):
+    return None
+  if isinstance(item, float) and not math.isfinite(item):
+    return (f"holds a non-finite number ({item}: NaN, Infinity or beyond the float range); expected finite numbers "
+            f"of magnitude at most {MAX_GRASP_VALUE:g} (metres)")
+  if abs(item) > MAX_GRASP_VALUE:
+    small = isinstance(item, float) or abs(item) < 1e300
+    shown = f"{item:.4g}" if small else f"an integer of about {int(item.bit_length() * 0.30103)} digits"
+    return f"holds {shown}; expected numbers of magnitude at most {MAX_GRASP_VALUE:g} (metres)"
+  return None
+
+
+def _check_widths(grasps: list[tuple[str, dict[str, np.ndarray]]], source: str, gripper: ParallelJawGripper) -> None:
+  """Refuses a parallel-jaw ``width`` outside the gripper's [min_width, max_width]."""
+  for i, (name, fields) in enumerate(grasps):
+    if name == "parallel_jaw" and not gripper.min_width <= float(fields["width"]) <= gripper.max_width:
+      raise GraspFileError(
+          f"{source}: grasps[{i}]: field 'width' is {float(fields['width']):g}; expected an opening in "
+          f"[min_width, max_width] = [{gripper.min_width:g}, {gripper.max_width:g}] metres of the parallel-jaw "
+          "gripper (grippers.parallel_jaw of --config)")
+
+
+def check_grasps_near_object(grasps: list[tuple[str, dict[str, np.ndarray]]], bounds: Any, source: str) -> None:
+  """Refuses a grasp whose ``center`` lies more than `MAX_GRASP_DISTANCE` from the object's bounding box.
+
+  Args:
+    grasps: parsed grasps (`read_grasp_file`), in file order.
+    bounds: (2, 3) [min, max] corners of the object's bounding box, metres (`ObjectModel.bounds`).
+    source: the grasp file's name, for the message.
+
+  Raises:
+    GraspFileError: naming the file, the grasp index, the distance and the bound.
+  """
+  low, high = np.asarray(bounds, np.float64)
+  for i, (_, fields) in enumerate(grasps):
+    center = np.asarray(fields["center"], np.float64)
+    distance = float(np.linalg.norm(np.maximum(0.0, np.maximum(low - center, center - high))))
+    if distance > MAX_GRASP_DISTANCE:
+      raise GraspFileError(
+          f"{source}: grasps[{i}]: field 'center' is {np.round(center, 6).tolist()}, {distance:.3g} m from the "
+          f"object's bounding box; expected a point within {MAX_GRASP_DISTANCE:g} m of the object (object frame, "
+          "metres)")
 
 
 def report_parameters(settings: ReportSettings, seed: int, grippers: list[str]) -> dict[str, Any]:

@@ -8,10 +8,10 @@
 `dexjax.objects.load_object_set`), draws B heaps from the Dex-Net 4.0 heap distribution, settles them and
 prints a summary (``--json``: one JSON object). ``--out`` saves the final poses, flags and object names as
 ``.npz`` (exactly at that path). Exit code 0 when every heap settled inside the bin, 1 when some object was
-flagged (left the bin, never settled) or rejected, 2 for bad input or when fewer objects loaded than a heap
-needs (docs/errors.md). ``preview`` draws a PNG of settled heaps, one row per procedural difficulty level.
-Outputs are checked before any computing; an existing file is only replaced if this command wrote it, or with
-``--overwrite``.
+flagged (left the bin, never settled) or rejected, 2 for bad input (a SOURCE path that does not exist, a range
+of more than 100,000 objects, ...) or when fewer objects loaded than a heap needs (docs/errors.md). ``preview``
+draws a PNG of settled heaps, one row per procedural difficulty level. Outputs are checked before any computing;
+an existing file is only replaced if this command wrote it, or with ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 
 from dexjax.cli import (add_overwrite_flag, atomic_write, check_output_file, command, is_dexjax_png, owned_npz,
                         stamp_png)
-from dexjax.objects.sets import load_object_set, prepare_object_set
+from dexjax.objects.sets import check_object_sources, load_object_set, prepare_object_set
 from dexjax.sim.bodies import heap_objects
 from dexjax.sim.heap import HeapDistribution, sample_heap_states
 from dexjax.sim.settling import BACKENDS, settle
@@ -65,6 +65,7 @@ def _settle(args: argparse.Namespace) -> int:
   if args.heaps < 1:
     raise ValueError(f'--heaps: expected an integer >= 1, got {args.heaps}')
   out = args.out and check_output_file(args.out, owned=owned_npz(*SETTLE_ARRAYS), overwrite=args.overwrite)
+  check_object_sources(args.sources)  # a missing path or a huge range: exit 2 before any object is built
   report = load_object_set(args.sources, scale=args.scale, recursive=args.recursive)
   prepared, rejected = prepare_object_set(report, model=False, progress=not args.json)
   for r in rejected:
