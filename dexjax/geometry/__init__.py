@@ -1,7 +1,8 @@
 """Object geometry: mesh loading and repair, signed distance grids, the `ObjectModel` pytree, its on-disk cache and
 small SO(3) / vector helpers.
 
-Cache internals (file keys, atomic writers) stay in `dexjax.geometry.cache`; they are not part of this surface.
+Cache internals (file keys, atomic writers: `dexjax.geometry.content_cache`, re-exported by `dexjax.geometry.cache`)
+and the mesh topology helpers (`dexjax.geometry.mesh_topology`) are not part of this surface.
 """
 
 from dexjax.geometry.build import build_object_model, grid_frame, sample_surface

@@ -41,6 +41,10 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import trimesh
 
+from dexjax.geometry.mesh_topology import (consistent_winding, directed_edges, face_adjacency, is_winding_consistent,
+                                           undirected_edge_counts)
+from dexjax.geometry.winding import cached_solidify
+
 SUPPORTED_EXTENSIONS: tuple[str, ...] = ('.obj', '.stl', '.ply', '.glb', '.off')
 """File extensions `load_mesh` accepts (case-insensitive)."""
 
@@ -214,17 +218,17 @@ def validate_and_repair(mesh: trimesh.Trimesh, name: str = '<mesh>') -> trimesh.
   faces = faces[np.sort(first)]
   vertices = np.asarray(out.vertices, np.float64)
 
-  non_manifold = int((_undirected_edge_counts(faces) > 2).sum())
+  non_manifold = int((undirected_edge_counts(faces) > 2).sum())
   imperfection = None
   if non_manifold:
     imperfection = f'{non_manifold} non-manifold edges (shared by more than two faces)'
   else:
-    faces = _orient_patches(faces)
+    faces = consistent_winding(faces)
     vertices, faces = _fill_small_holes(vertices, faces)
-    open_edges = int((_undirected_edge_counts(faces) == 1).sum())
+    open_edges = int((undirected_edge_counts(faces) == 1).sum())
     if open_edges:
       imperfection = f'not watertight after repair ({open_edges} open edges)'
-    elif not _is_winding_consistent(faces):
+    elif not is_winding_consistent(faces):
       imperfection = 'faces cannot be oriented consistently (non-orientable surface)'
   if imperfection is None:
     try:
@@ -248,7 +252,6 @@ def _solid_from_soup(vertices: np.ndarray, faces: np.ndarray, name: str,
   Raises:
     MeshError: nothing is inside (an open sheet, a single patch without volume).
   """
-  from dexjax.geometry.winding import cached_solidify  # pylint: disable=g-import-not-at-top (import cycle)
   solid_vertices, solid_faces = cached_solidify(vertices, faces)
   if len(solid_faces) == 0:
     raise MeshError(name, f'{imperfection}, and no volume is inside it (its generalized winding number stays '
@@ -268,87 +271,6 @@ def _check_not_flat(points: np.ndarray, name: str) -> None:
     raise MeshError(name, 'degenerate mesh: zero volume (all vertices lie in one plane); expected a solid')
 
 
-def _undirected_edge_counts(faces: np.ndarray) -> np.ndarray:
-  """Returns how many faces share each distinct undirected edge of (F, 3) faces."""
-  edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-  _, counts = np.unique(edges, axis=0, return_counts=True)
-  return counts
-
-
-def _directed_edges(faces: np.ndarray) -> np.ndarray:
-  """Returns the (3F, 2) directed edges (a, b), (b, c), (c, a) of (F, 3) faces, face-major."""
-  return faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-
-
-def _is_winding_consistent(faces: np.ndarray) -> bool:
-  """True if no directed edge occurs twice (adjacent faces traverse their shared edge in opposite senses)."""
-  _, counts = np.unique(_directed_edges(faces), axis=0, return_counts=True)
-  return bool((counts == 1).all())
-
-
-def _face_adjacency(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-  """Pairs of faces sharing a manifold edge.
-
-  Returns:
-    pairs: (E, 2) int64 face indices.
-    shared: (E, 2) int64 the shared edge as it appears (directed) in face ``pairs[:, 0]``.
-  """
-  directed = _directed_edges(faces)
-  undirected = np.sort(directed, axis=1)
-  _, inverse, counts = np.unique(undirected, axis=0, return_inverse=True, return_counts=True)
-  inverse = inverse.reshape(-1)
-  keep = counts[inverse] == 2
-  idx = np.nonzero(keep)[0]
-  order = idx[np.argsort(inverse[idx], kind='stable')]
-  first, second = order[0::2], order[1::2]
-  pairs = np.stack([first // 3, second // 3], axis=1)
-  return pairs, directed[first]
-
-
-def _orient_patches(faces: np.ndarray) -> np.ndarray:
-  """Flips faces so that every edge-connected patch is consistently wound (like trimesh's fix_winding).
-
-  Args:
-    faces: (F, 3) int64, every edge shared by at most two faces.
-
-  Returns:
-    (F, 3) int64 faces; within each patch, faces adjacent to the patch's first face keep its orientation.
-  """
-  if _is_winding_consistent(faces):
-    return faces
-  pairs, shared = _face_adjacency(faces)
-  num_faces = len(faces)
-  # same[k] is True if the two faces of pair k traverse their shared edge in the same direction.
-  second_edges = _directed_edges(faces).reshape(num_faces, 3, 2)[pairs[:, 1]]
-  same = (second_edges == shared[:, None, :]).all(axis=2).any(axis=1)
-  adjacency = scipy.sparse.coo_matrix(
-      (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(num_faces, num_faces))
-  _, labels = scipy.sparse.csgraph.connected_components(adjacency, directed=False)
-  _, roots = np.unique(labels, return_index=True)
-  # One breadth-first traversal from a virtual node (index F) linked to the first face of every patch.
-  rows = np.concatenate([pairs[:, 0], np.full(len(roots), num_faces)])
-  cols = np.concatenate([pairs[:, 1], roots])
-  graph = scipy.sparse.coo_matrix(
-      (np.ones(len(rows)), (rows, cols)), shape=(num_faces + 1, num_faces + 1)).tocsr()
-  order, pred = scipy.sparse.csgraph.breadth_first_order(graph, num_faces, directed=False)
-  children = order[1:]
-  parents = pred[children]
-  pair_keys = np.minimum(pairs[:, 0], pairs[:, 1]) * num_faces + np.maximum(pairs[:, 0], pairs[:, 1])
-  key_order = np.argsort(pair_keys)
-  pair_keys, same = pair_keys[key_order], same[key_order]
-  keys = np.minimum(parents, children) * num_faces + np.maximum(parents, children)
-  found = np.clip(np.searchsorted(pair_keys, keys), 0, max(len(pair_keys) - 1, 0))
-  relative = np.where(parents == num_faces, False, same[found] if len(same) else False).tolist()
-  flip = [False] * (num_faces + 1)
-  # Parents precede children in breadth-first order, so one sequential pass suffices.
-  for child, parent, rel in zip(children.tolist(), parents.tolist(), relative):
-    flip[child] = flip[parent] ^ rel
-  flip = np.asarray(flip[:num_faces], bool)
-  faces = faces.copy()
-  faces[flip] = faces[flip][:, ::-1]
-  return faces
-
-
 def _fill_small_holes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
   """Closes boundary loops of at most `MAX_HOLE_EDGES` edges with triangles wound like their neighbours.
 
@@ -363,7 +285,7 @@ def _fill_small_holes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarr
   Returns:
     (vertices, faces) with the new vertices / faces appended.
   """
-  directed = _directed_edges(faces)
+  directed = directed_edges(faces)
   undirected = np.sort(directed, axis=1)
   _, inverse, counts = np.unique(undirected, axis=0, return_inverse=True, return_counts=True)
   boundary = directed[counts[inverse.reshape(-1)] == 1]
@@ -415,7 +337,7 @@ def _orient_components(vertices: np.ndarray, faces: np.ndarray, name: str) -> tu
   Returns:
     (vertices, faces) of a solid whose total signed volume is positive.
   """
-  pairs, _ = _face_adjacency(faces)
+  pairs, _ = face_adjacency(faces)
   adjacency = scipy.sparse.coo_matrix(
       (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(faces), len(faces)))
   num_comp, labels = scipy.sparse.csgraph.connected_components(adjacency, directed=False)

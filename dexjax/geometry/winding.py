@@ -39,7 +39,8 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import trimesh
 
-from dexjax.geometry.mesh_io import _face_adjacency, _orient_patches
+from dexjax.geometry.content_cache import atomic_write_npz, content_key, default_cache_dir
+from dexjax.geometry.mesh_topology import consistent_winding, face_adjacency
 
 RESOLUTION: int = 128
 """Default voxels of the reconstruction grid along the mesh's longest extent."""
@@ -72,8 +73,8 @@ def orient_patches(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
     faces: (F, 3) int64, re-wound.
     num_patches: number of patches.
   """
-  faces = _orient_patches(np.asarray(faces, np.int64))
-  pairs, _ = _face_adjacency(faces)
+  faces = consistent_winding(np.asarray(faces, np.int64))
+  pairs, _ = face_adjacency(faces)
   adjacency = scipy.sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
                                       shape=(len(faces), len(faces)))
   num_patches, labels = scipy.sparse.csgraph.connected_components(adjacency, directed=False)
@@ -176,13 +177,12 @@ def cached_solidify(vertices: np.ndarray, faces: np.ndarray, *, cache_dir: str |
   """`solidify`, read from ``<cache_dir>/solids/<key>.npz`` when there (key: the soup's content, the
   parameters and `SOLID_CACHE_FORMAT_VERSION`); written atomically after computing. An unreadable entry is
   recomputed; an unwritable cache directory only costs the recomputation next time."""
-  from dexjax.geometry import cache  # pylint: disable=g-import-not-at-top (cache -> build -> mesh_io -> here)
   vertices = np.asarray(vertices, np.float64)
   faces = np.asarray(faces, np.int64)
   header = {'kind': 'solid', 'version': SOLID_CACHE_FORMAT_VERSION, 'resolution': int(resolution),
             'max_faces': int(max_faces)}
-  key = cache.content_key(header, vertices, faces)
-  path = os.path.join(cache_dir or cache.default_cache_dir(), SOLID_CACHE_SUBDIR, f'{key}.npz')
+  key = content_key(header, vertices, faces)
+  path = os.path.join(cache_dir or default_cache_dir(), SOLID_CACHE_SUBDIR, f'{key}.npz')
   try:
     with np.load(path) as stored:
       if str(stored['key']) == key:
@@ -192,7 +192,7 @@ def cached_solidify(vertices: np.ndarray, faces: np.ndarray, *, cache_dir: str |
   out = solidify(vertices, faces, resolution=resolution, max_faces=max_faces)
   try:
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    cache.atomic_write_npz(path, {'key': np.asarray(key), 'vertices': out[0], 'faces': out[1]})
+    atomic_write_npz(path, {'key': np.asarray(key), 'vertices': out[0], 'faces': out[1]})
   except OSError as e:
     warnings.warn(f"solid cache '{path}' could not be written ({e}); the solid is recomputed next time",
                   RuntimeWarning, stacklevel=2)

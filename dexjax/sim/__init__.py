@@ -14,8 +14,9 @@ from dexjax.sim.heap import (MAX_OBJECTS, Bin, HeapDistribution, HeapState, samp
                              truncated_poisson_pmf)
 from dexjax.sim.scene import (SettleSettings, bin_boxes, build_heap_model, compile_heap, drop_poses, heap_slots,
                               heap_spec, initial_qpos, quat_to_matrix)
-from dexjax.sim.settling import (BACKENDS, SettleResult, SettleTimeout, default_backend, object_speeds, resting, rotate,
-                               settle)
+from dexjax.sim.mjx_backend import SettleTimeout
+from dexjax.sim.rest import object_speeds, resting, rotate
+from dexjax.sim.settling import BACKENDS, SettleResult, default_backend, settle
 
 __all__ = [
     "DEFAULT_DENSITY", "DEFAULT_MASS_RANGE", "HeapObject", "heap_object", "heap_objects", "mass_solid",

@@ -40,8 +40,12 @@ import numpy as np
 
 from dexjax.sim.bodies import HeapObject
 from dexjax.sim.heap import HeapState, select_heap
+from dexjax.sim.rest import resting
 from dexjax.sim.scene import SettleSettings, build_heap_model, heap_slots, initial_qpos
-from dexjax.sim.settling import SettleTimeout, resting
+
+
+class SettleTimeout(TimeoutError):
+  """The MJX child process did not finish within ``SettleSettings.mjx_timeout`` seconds and was killed."""
 
 
 def _group_key(state: HeapState) -> tuple[int, ...]:

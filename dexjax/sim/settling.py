@@ -17,6 +17,10 @@ Backends:
   `dexjax.sim.mjx_backend`), run in a pinned child process on CPU.
 * ``'auto'``: ``'rollout'`` when ``jax.default_backend() == 'cpu'`` (the C engine is ~100x faster there),
   ``'mjx'`` on GPU/TPU.
+
+The rest test of both backends (`resting`, `object_speeds`, `rotate`) lives in `dexjax.sim.rest` and the MJX
+child's `SettleTimeout` in `dexjax.sim.mjx_backend` (which imports `mujoco.mjx` only when it compiles); both are
+re-exported here.
 """
 
 from __future__ import annotations
@@ -32,8 +36,11 @@ import numpy as np
 from flax import struct
 from mujoco import rollout as mj_rollout
 
+from dexjax.sim import mjx_backend
 from dexjax.sim.bodies import HeapObject
 from dexjax.sim.heap import HeapState, select_heap
+from dexjax.sim.mjx_backend import SettleTimeout
+from dexjax.sim.rest import cross, object_speeds, resting, rotate
 from dexjax.sim.scene import SettleSettings, build_heap_model, drop_poses, heap_slots
 
 BACKENDS = ('auto', 'rollout', 'mjx')
@@ -82,48 +89,6 @@ class SettleResult:
             'never_settled': int(self.never_settled.sum()), 'diverged_heaps': int(self.diverged.sum()),
             'mean_steps': float(np.mean(self.steps)) if len(self.steps) else 0.0,
             'max_steps': int(np.max(self.steps)) if len(self.steps) else 0}
-
-
-class SettleTimeout(TimeoutError):
-  """The MJX child process did not finish within ``SettleSettings.mjx_timeout`` seconds and was killed."""
-
-
-def _cross(a: Any, b: Any, xp: Any = np) -> Any:
-  """``xp.cross`` of (..., 3) vectors by components: the same products and differences (bitwise equal), without
-  NumPy's per-call axis handling, which dominated the settling loop's small arrays."""
-  a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-  b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-  return xp.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
-def rotate(quaternion: Any, vector: Any, xp: Any = np) -> Any:
-  """Rotates vectors (..., 3) by unit quaternions (..., 4) (w, x, y, z); ``xp`` is `numpy` or `jax.numpy`."""
-  w, r = quaternion[..., :1], quaternion[..., 1:]
-  t = 2.0 * _cross(r, vector, xp)
-  return vector + w * t + _cross(r, t, xp)
-
-
-def object_speeds(qpos: Any, qvel: Any, centers_of_mass: Any, xp: Any = np) -> tuple[Any, Any]:
-  """Centre-of-mass and angular speeds of free bodies whose frame is the object frame.
-
-  Args:
-    qpos: (..., m, 7) free-joint positions: frame origin (world, metres) and quaternion (w, x, y, z).
-    qvel: (..., m, 6) free-joint velocities: origin velocity (world, m/s), angular velocity (body, rad/s).
-    centers_of_mass: (m, 3) centres of mass in the object frames, metres.
-    xp: `numpy` or `jax.numpy`.
-
-  Returns:
-    (linear (..., m) m/s, angular (..., m) rad/s).
-  """
-  omega = qvel[..., 3:]
-  v_com = qvel[..., :3] + rotate(qpos[..., 3:], _cross(omega, centers_of_mass, xp), xp)
-  return xp.linalg.norm(v_com, axis=-1), xp.linalg.norm(omega, axis=-1)
-
-
-def resting(qpos: Any, qvel: Any, centers_of_mass: Any, settings: SettleSettings, xp: Any = np) -> Any:
-  """(..., m) bool: each object's speeds are below the settling thresholds (shapes as `object_speeds`)."""
-  lin, ang = object_speeds(qpos, qvel, centers_of_mass, xp)
-  return (lin < settings.linear_speed_tol) & (ang < settings.angular_speed_tol)
 
 
 def _first_rest(qpos: np.ndarray, qvel: np.ndarray, centers_of_mass: np.ndarray, settings: SettleSettings) -> int:
@@ -197,7 +162,7 @@ def finish(objects: Sequence[HeapObject], states: HeapState, qpos: list[np.ndarr
     quat = q[:, 3:] / np.maximum(np.linalg.norm(q[:, 3:], axis=1, keepdims=True), 1e-12)
     poses[b, slots] = np.concatenate([q[:, :3], quat], axis=1)
     centers[b, slots] = q[:, :3] + rotate(quat, coms)
-    velocities[b, slots, :3] = v[:, :3] + rotate(quat, _cross(v[:, 3:], coms))
+    velocities[b, slots, :3] = v[:, :3] + rotate(quat, cross(v[:, 3:], coms))
     velocities[b, slots, 3:] = rotate(quat, v[:, 3:])
     never[b, slots] = diverged[b] | ~resting(q, v, coms, settings)
     initial[b] = _drop_vector(objects, state, settings) if drops is None else drops[b]
@@ -345,7 +310,10 @@ def settle(objects: Sequence[HeapObject], states: HeapState, *, backend: str = '
     result = _settle_rollout(objects, states, settings, start_poses)
     return result if start_poses is None else result.replace(initial_poses=np.where(
         states.mask[..., None], start_poses, result.initial_poses))
-  from dexjax.sim import mjx_backend  # imports mujoco.mjx only when needed
   settings = settings.replace(sleep=False)  # MJX does not put bodies to sleep: say so in the settings it ran
   raw = mjx_backend.run(objects, states, settings)
   return finish(objects, states, raw['qpos'], raw['qvel'], raw['steps'], raw['diverged'], settings, 'mjx')
+
+
+__all__ = ['BACKENDS', 'SettleResult', 'SettleTimeout', 'default_backend', 'finish', 'object_speeds', 'resting',
+           'rotate', 'settle']
