@@ -28,7 +28,12 @@ The scorers do not restrict centres to ``observation.mask`` (a policy's candidat
   threshold; we use the true point-plane distance and an absolute threshold only, so a grasp's score does not
   depend on the other candidates (a percentile always calls some candidates planar, even on a sphere). The
   window (gqcnn ``window_size``, default 25 px) must hold the disc: at least 2 fx r / z_min + 1 pixels
-  (`suction_window`); a larger window only costs time.
+  (`suction_window`); a larger window only costs time. Approach: gqcnn keeps the sampler's, the normal of the
+  depth's central differences at the pixel, which a noisy sensor tilts (0.5 mm noise: 5-7 degrees median on
+  level 1, where the cup seals on a flat face up to ~11 degrees and on a 4 cm can's side ~3); with a static
+  ``fit_approach`` of k > 0, ``refine`` turns each candidate to the normal of the plane best fitting its disc
+  points (the disc's covariance's smallest eigenvector, k refits; gqcnn's "best-fit planarity" plane), and the
+  benchmark's heuristics (`dexjax.policy.make_policy`) do, with k = 2 (docs/deviations.md).
 * `ParallelJawForceClosureCentroid` (gqcnn ``parallel_jaw_com_force_closure``, Dex-Net 2.1's image-based force
   closure): each jaw starts at its tip, the centre -/+ half the opening (width projected at the grasp depth:
   (fx, fy) width / (2 depth) along the axis), and moves to the centre in ``num_steps`` samples (nearest pixels);
@@ -66,8 +71,8 @@ from dexjax.policy.instances import depth_instances
 from dexjax.policy.observation import Observation
 from dexjax.policy.scorers import GRIPPERS, PARALLEL_JAW, SUCTION
 from dexjax.render.camera import Camera, pixel_rays
-from dexjax.sampling.image_grasps import (ImageParallelJawGrasp, ImageSuctionGrasp, approach_from_angles,
-                                          camera_point)
+from dexjax.sampling.image_grasps import (ImageParallelJawGrasp, ImageSuctionGrasp, angles_from_approach,
+                                          approach_from_angles, camera_point)
 from dexjax.sampling.image_samplers import masked_blur
 
 _E1 = math.exp(-1.0)
@@ -126,9 +131,8 @@ def suction_window(camera: Camera, min_depth: float, cup_radius: float = 0.01) -
   return 2 * math.ceil(max(float(k.fx), float(k.fy)) * cup_radius / min_depth) + 1
 
 
-def _disc_mse(points: jax.Array, valid: jax.Array, camera: Camera, grasp: ImageSuctionGrasp, radius: jax.Array,
-              size: int) -> jax.Array:
-  """() mean squared distance along the approach of the disc points of one grasp; inf if it cannot be scored.
+def _disc_window(points: jax.Array, valid: jax.Array, grasp: ImageSuctionGrasp, size: int):
+  """(window (size, size, 3) points, ok (size, size) bool, inside ()) around one grasp's centre pixel.
 
   ``points`` (H + size - 1, W + size - 1, 3) camera-frame points and ``valid`` (same, bool) are padded by
   size // 2 on each side, so the window of centre pixel (r, c) starts at padded (r, c).
@@ -138,26 +142,75 @@ def _disc_mse(points: jax.Array, valid: jax.Array, camera: Camera, grasp: ImageS
   inside = (row >= 0) & (row < h) & (col >= 0) & (col < w)
   start = (jnp.clip(row, 0, h - 1), jnp.clip(col, 0, w - 1))
   window = jax.lax.dynamic_slice(points, (*start, 0), (size, size, 3))
-  ok = jax.lax.dynamic_slice(valid, start, (size, size))
-  contact = camera_point(camera, grasp.center, grasp.depth)
-  approach = approach_from_angles(grasp.angle, grasp.approach_angle)
+  return window, jax.lax.dynamic_slice(valid, start, (size, size)), inside
+
+
+def _in_disc(window: jax.Array, ok: jax.Array, contact: jax.Array, approach: jax.Array, radius: jax.Array):
+  """((size, size) bool disc membership, (size, size) distances along the approach) of window points."""
   offset = window - contact
   along = offset @ approach
-  in_disc = ok & (jnp.sum(offset * offset, axis=-1) - along * along <= radius * radius)
+  return ok & (jnp.sum(offset * offset, axis=-1) - along * along <= radius * radius), along
+
+
+def _disc_mse(points: jax.Array, valid: jax.Array, camera: Camera, grasp: ImageSuctionGrasp, radius: jax.Array,
+              size: int) -> jax.Array:
+  """() mean squared distance along the approach of the disc points of one grasp; inf if it cannot be scored
+  (``points``, ``valid``: padded, `_disc_window`)."""
+  window, ok, inside = _disc_window(points, valid, grasp, size)
+  contact = camera_point(camera, grasp.center, grasp.depth)
+  approach = approach_from_angles(grasp.angle, grasp.approach_angle)
+  in_disc, along = _in_disc(window, ok, contact, approach, radius)
   count = jnp.sum(in_disc)
   mse = jnp.sum(jnp.where(in_disc, along * along, 0.0)) / jnp.maximum(count, 1)
   good = inside & (grasp.depth > 0) & jnp.all(jnp.isfinite(contact)) & jnp.all(jnp.isfinite(approach))
   return jnp.where(good & (count > 0) & jnp.isfinite(mse), mse, jnp.inf)
 
 
-@functools.partial(jax.jit, static_argnums=3)
-def _planarity_mse(observation: Observation, grasps: ImageSuctionGrasp, radius: jax.Array, half: int) -> jax.Array:
-  """(N,) float32 disc MSE of N grasps (`SuctionPlanarityCentroid.planarity_mse`), window 2 half + 1 pixels."""
+def _disc_plane_approach(points: jax.Array, valid: jax.Array, camera: Camera, grasp: ImageSuctionGrasp,
+                         radius: jax.Array, size: int, iterations: int) -> jax.Array:
+  """(3,) camera-frame unit approach of one grasp along the normal of the plane best fitting its disc points
+  (least squares: the covariance's smallest eigenvector), pointing away from the camera (a_z > 0). The disc is
+  taken about the current approach and refitted ``iterations`` times; the grasp's own approach is kept where a
+  fit has fewer than 3 points or is not finite."""
+  window, ok, _ = _disc_window(points, valid, grasp, size)
+  contact = camera_point(camera, grasp.center, grasp.depth)
+  approach = approach_from_angles(grasp.angle, grasp.approach_angle)
+  for _ in range(iterations):
+    in_disc, _ = _in_disc(window, ok, contact, approach, radius)
+    count = jnp.sum(in_disc)
+    weight = in_disc[..., None].astype(window.dtype)
+    mean = jnp.sum(weight * window, axis=(0, 1)) / jnp.maximum(count, 1)
+    centred = (jnp.where(in_disc[..., None], window, mean) - mean).reshape(-1, 3)
+    normal = jnp.linalg.eigh(centred.T @ centred)[1][:, 0]
+    normal = jnp.where(normal[2] < 0, -normal, normal)
+    approach = jnp.where((count >= 3) & jnp.all(jnp.isfinite(normal)), normal, approach)
+  return approach
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4))
+def _fitted_approaches(observation: Observation, grasps: ImageSuctionGrasp, radius: jax.Array, half: int,
+                       iterations: int) -> ImageSuctionGrasp:
+  """N grasps with their approach replaced by their disc's best-fit plane normal (`_disc_plane_approach`)."""
+  points, valid = _padded_points(observation, half)
+  approach = jax.vmap(_disc_plane_approach, in_axes=(None, None, None, 0, None, None, None))(
+      points, valid, observation.camera, grasps, radius, 2 * half + 1, iterations)
+  angle, approach_angle = jax.vmap(angles_from_approach)(approach)
+  return grasps.replace(angle=angle.astype(grasps.angle.dtype),
+                        approach_angle=approach_angle.astype(grasps.approach_angle.dtype))
+
+
+def _padded_points(observation: Observation, half: int) -> tuple[jax.Array, jax.Array]:
+  """Camera-frame points (H + 2 half, W + 2 half, 3) of the observation's valid pixels and their mask, padded."""
   depth = observation.depth
   valid = jnp.isfinite(depth) & (depth > 0)
   points = pixel_rays(observation.camera.intrinsics) * jnp.where(valid, depth, 0.0)[..., None]
-  points = jnp.pad(points, ((half, half), (half, half), (0, 0)))
-  valid = jnp.pad(valid, half)
+  return jnp.pad(points, ((half, half), (half, half), (0, 0))), jnp.pad(valid, half)
+
+
+@functools.partial(jax.jit, static_argnums=3)
+def _planarity_mse(observation: Observation, grasps: ImageSuctionGrasp, radius: jax.Array, half: int) -> jax.Array:
+  """(N,) float32 disc MSE of N grasps (`SuctionPlanarityCentroid.planarity_mse`), window 2 half + 1 pixels."""
+  points, valid = _padded_points(observation, half)
   mse = jax.vmap(_disc_mse, in_axes=(None, None, None, 0, None, None))(points, valid, observation.camera, grasps,
                                                                          radius, 2 * half + 1)
   return mse.astype(jnp.float32)
@@ -174,6 +227,9 @@ class SuctionPlanarityCentroid:
     instance_jump: static, without ``labels``: None (the segmask's centroid, gqcnn's default) or the depth jump
       (metres) separating the instances the centroid term segments each observation into (module doc).
     window: static, side of the pixel window holding the disc (odd; an even value is rounded up), pixels.
+    fit_approach: static, 0 (gqcnn: each candidate keeps its sampler's approach, the local surface normal) or
+      the number of best-fit plane refits of `refine`, which turns each candidate's approach to the normal of
+      the plane best fitting its disc (module doc).
   """
 
   cup_radius: float = 0.01
@@ -181,6 +237,7 @@ class SuctionPlanarityCentroid:
   labels: jax.Array | None = None
   instance_jump: float | None = struct.field(pytree_node=False, default=None)
   window: int = struct.field(pytree_node=False, default=25)
+  fit_approach: int = struct.field(pytree_node=False, default=0)
 
   @property
   def gripper(self) -> str:
@@ -190,6 +247,15 @@ class SuctionPlanarityCentroid:
     """(N,) float32 mean squared distance (m^2) of each grasp's disc points to the plane through the contact
     perpendicular to the approach; +inf where a grasp cannot be scored (centre off the image, bad fields)."""
     return _planarity_mse(observation, grasps, jnp.asarray(self.cup_radius, jnp.float32), self.window // 2)
+
+  def refine(self, observation: Observation, grasps: ImageSuctionGrasp) -> ImageSuctionGrasp:
+    """N candidates as the policy executes them: with ``fit_approach`` > 0 each approach is the normal of the
+    plane best fitting the depth points of its cup disc (``fit_approach`` refits, each taking the disc about
+    the last normal), else unchanged. Centres and depths are kept."""
+    if self.fit_approach <= 0:
+      return grasps
+    return _fitted_approaches(observation, grasps, jnp.asarray(self.cup_radius, jnp.float32), self.window // 2,
+                              self.fit_approach)
 
   def planarity(self, observation: Observation, grasps: ImageSuctionGrasp) -> jax.Array:
     """(N,) planarity q_p = exp(-MSE / planarity_threshold) in [0, 1] (0 where unscorable)."""

@@ -6,7 +6,7 @@
 | ``parallel_jaw`` / ``suction`` | CEM with that gripper's GQ-CNN only | that gripper's |
 | ``ranking`` | N candidates per gripper scored by the GQ-CNNs, the best overall (no refinement) | one or both |
 | ``random`` | a uniformly random gripper and candidate (its predicted probability reported if a model is given) | none |
-| ``suction_heuristic`` | suction planarity-centroid ranking (Dex-Net 3.0's baseline) | none |
+| ``suction_heuristic`` | suction planarity-centroid ranking (Dex-Net 3.0's baseline), approach on the disc's best-fit plane | none |
 | ``composite_heuristic`` | the suction or the parallel-jaw force-closure heuristic, by a fixed rule | none |
 | ``supervisor`` | the best robust grasp in the true bin (privileged state: the benchmark's ceiling) | none |
 
@@ -146,7 +146,8 @@ def make_policy(name: str, models: Mapping[str, GraspQualityModel] | None = None
     return RandomComposite(tuple(RandomPolicy(sampler(g), GQCNNScorer(models[g]) if g in models else None)
                                  for g in GRIPPERS))
   # Per-object centroids from the image's depth instances: the segmask's centroid is the bin's (heuristics doc).
-  suction = RankingPolicy(SuctionPlanarityCentroid(instance_jump=DEFAULT_MAX_JUMP), sampler(SUCTION))
+  # The suction heuristic approaches along its disc's best-fit plane, not the noisy pixel normal (heuristics doc).
+  suction = RankingPolicy(SuctionPlanarityCentroid(instance_jump=DEFAULT_MAX_JUMP, fit_approach=2), sampler(SUCTION))
   if name == 'suction_heuristic':
     return GreedyComposite((suction,))
   jaws = ParallelJawForceClosureCentroid(instance_jump=DEFAULT_MAX_JUMP)

@@ -63,6 +63,9 @@ def ranking_policy(key: jax.Array, observation: Observation, policy: RankingPoli
   """The best of N sampled candidates by the policy's scorer (``valid`` False when there is none). ``samples``
   (static) keeps the N candidates and their scores (one round) in ``action.samples``."""
   grasps, valid = sample_candidates(key, observation, policy.sampler)
+  refine = getattr(policy.scorer, 'refine', None)  # A heuristic that turns its candidates before scoring them.
+  if refine is not None:
+    grasps = refine(observation, grasps)
   quality = jnp.where(valid, policy.scorer(observation, grasps), -jnp.inf)
   best = jnp.argmax(quality)
   ok = jnp.isfinite(quality[best])
