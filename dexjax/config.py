@@ -204,6 +204,8 @@ def parse_json(text: str, source: str, *, expected: str | None = "a JSON object"
   except json.JSONDecodeError as e:
     raise ConfigError(source, f"line {e.lineno}, column {e.colno}",
                       f"not valid JSON: {e.msg}{_expecting(expected)}") from None
+  except ValueError as e:  # an integer of more digits than Python converts (sys.get_int_max_str_digits)
+    raise ConfigError(source, "", f"not usable JSON: {e}{_expecting(expected)}") from None
   except RecursionError:
     raise _too_deep(source) from None
 

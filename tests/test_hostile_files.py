@@ -97,6 +97,13 @@ def test_deeply_nested_files_are_refused_by_every_cli(tmp_path, capsys, monkeypa
   assert not out.exists() and not gen.exists() and not run.exists() and not (tmp_path / 'bench').exists()
 
 
+def test_a_json_integer_too_long_to_convert_names_the_file():
+  """Python refuses to convert integers of more than 4300 digits; the reader names the file instead of raising a
+  bare ValueError."""
+  with pytest.raises(ConfigError, match='grasps.json.*not usable JSON'):
+    parse_json('{"width": ' + '9' * 5000 + '}', 'grasps.json')
+
+
 def test_deeply_nested_files_are_refused_by_the_library_readers(tmp_path):
   deep_json = _write(tmp_path / 'deep.json', DEEP_TEXT)
   with pytest.raises(GraspFileError, match=rf'deep.json: line 1, column {MAX_NESTING + 1}: lists or mappings nested'):
@@ -193,6 +200,9 @@ def test_image_size_is_limited_when_the_camera_file_is_read(tmp_path, capsys, mo
   np.save(tmp_path / 'depth.npy', np.full((8, 8), 0.7, np.float32))
   _bad(capsys, plan_main, [tmp_path / 'depth.npy', '--intrinsics', huge, '--model', 'pretrained', '--out',
                            tmp_path / 'p.json'], 'huge.json', 'width', f'at most {MAX_IMAGE_SIDE}')
+  config = _write(tmp_path / 'big.yaml', 'camera:\n  width: 50000\n')  # a generate config's camera section
+  _bad(capsys, generate_main, ['--config', config, '--out', tmp_path / 'gen', '--num-images', '1'],
+       'big.yaml', 'width', f'at most {MAX_IMAGE_SIDE}')
   assert load_intrinsics(_intrinsics(tmp_path / 'max.json', width=MAX_IMAGE_SIDE)).width == MAX_IMAGE_SIDE
   assert not (tmp_path / 'gen').exists() and not (tmp_path / 'd.png').exists()
 

@@ -207,7 +207,7 @@ def _read_json_object(path: Path) -> dict[str, Any] | None:
   """The JSON object in ``path``; None if it is unreadable, not UTF-8 JSON or not an object."""
   try:
     data = json.loads(path.read_bytes().decode('utf-8'))
-  except (OSError, ValueError):
+  except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep
     return None
   return data if isinstance(data, dict) else None
 

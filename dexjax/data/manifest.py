@@ -72,7 +72,7 @@ def load_manifest(out_dir: str | os.PathLike) -> Manifest | None:
     return Manifest(data["config_fingerprint"], data["seed"], data["num_shards"], records)
   except FileNotFoundError:
     return None
-  except (ValueError, KeyError, TypeError) as err:
+  except (ValueError, KeyError, TypeError, RecursionError) as err:
     raise ShardError(f"manifest '{path}': unreadable ({type(err).__name__}: {err})") from err
 
 

@@ -242,7 +242,7 @@ def _parse_meta(path: Path, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
   text = arrays.pop(_META_KEY)
   try:
     meta = json.loads(str(text.item()))
-  except ValueError as err:
+  except (ValueError, RecursionError) as err:
     raise _fail(path, _META_KEY, f"expected JSON, got {err}") from err
   if meta.get("format_version") != FORMAT_VERSION:
     raise _fail(path, "format_version", f"expected {FORMAT_VERSION}, got {meta.get('format_version')}")

@@ -87,7 +87,7 @@ def _is_run_config(path: Path) -> bool:
   """True if ``path`` is a ``config.json`` this module wrote: a JSON object of exactly fingerprint and config."""
   try:
     data = json.loads(path.read_text(encoding='utf-8'))
-  except (OSError, ValueError):
+  except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep
     return False
   return isinstance(data, dict) and set(data) == {'fingerprint', 'config'}
 

@@ -18,6 +18,11 @@ from flax import struct
 
 from dexjax.geometry.transforms import normalize
 
+#: Largest image width and height dexjax renders and accepts from a camera, intrinsics or config file, pixels:
+#: room for a 4K sensor (3840 x 2160), within the offscreen framebuffer every GL backend provides (larger ones
+#: fail inside MuJoCo: "Offscreen framebuffer is not complete") and the memory of one image per ray-casting call.
+MAX_IMAGE_SIDE = 4096
+
 
 @struct.dataclass
 class Intrinsics:

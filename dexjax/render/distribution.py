@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from dexjax.render.camera import Camera, Intrinsics, look_at
+from dexjax.render.camera import MAX_IMAGE_SIDE, Camera, Intrinsics, look_at
 
 # (field name, unit, lower bound kind) of every sampled range, in sampling order.
 _RANGES = (
@@ -115,9 +115,10 @@ def _check_range(name: str, value, unit: str, kind: str) -> None:
 
 
 def _check_size(name: str, value) -> None:
-  """Raises ValueError unless ``value`` is a positive Python integer (not a bool)."""
-  if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value <= 0:
-    raise ValueError(f'CameraDistribution: {name}: expected a positive integer (pixels), got {value!r}')
+  """Raises ValueError unless ``value`` is a Python integer (not a bool) in [1, `MAX_IMAGE_SIDE`]."""
+  if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 < value <= MAX_IMAGE_SIDE:
+    raise ValueError(f'CameraDistribution: {name}: expected a positive integer of at most {MAX_IMAGE_SIDE} '
+                     f'(pixels; the largest image side dexjax renders), got {value!r}')
 
 
 def camera_from_spherical(center: jax.Array, r: jax.Array | float, theta: jax.Array | float,

@@ -31,14 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from dexjax.config import ConfigError, number_hint, parse_json, parse_yaml_documents
-from dexjax.render.camera import Camera, Intrinsics
+from dexjax.render.camera import MAX_IMAGE_SIDE, Camera, Intrinsics
 
 ROTATION_TOLERANCE = 1e-4  # max |R^T R - I| and |det R - 1| accepted for a stored rotation
 
-#: Largest image width and height accepted from a camera or intrinsics file, pixels: room for a 4K sensor
-#: (3840 x 2160), within the offscreen framebuffer every GL backend provides (larger ones fail inside MuJoCo:
-#: "Offscreen framebuffer is not complete") and the memory of one image per ray-casting call.
-MAX_IMAGE_SIDE = 4096
 
 
 def _read_mapping(path: str | os.PathLike) -> dict[str, Any]:
