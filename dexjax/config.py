@@ -188,19 +188,39 @@ def _json_too_deep(text: str) -> int | None:
   return None
 
 
+class _DuplicateKey(ValueError):
+  """A JSON object names one key twice (`json` would silently keep the last value)."""
+
+  def __init__(self, key: str):
+    super().__init__(key)
+    self.key = key
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+  """`json` ``object_pairs_hook``: the object's dict; raises `_DuplicateKey` for a key given twice."""
+  data = dict(pairs)
+  if len(data) != len(pairs):
+    seen: set[str] = set()
+    raise _DuplicateKey(next(k for k, _ in pairs if k in seen or seen.add(k)))
+  return data
+
+
 def parse_json(text: str, source: str, *, expected: str | None = "a JSON object") -> Any:
   """The decoded JSON ``text`` (from the file ``source``), its nesting checked before decoding.
 
   Raises:
     ConfigError: one line naming ``source``, the line and column, the problem and ``expected`` (None: the
-      caller says what it expected): malformed JSON or nesting deeper than `MAX_NESTING`.
+      caller says what it expected): malformed JSON, nesting deeper than `MAX_NESTING`, or a key given twice in
+      one object (as `parse_yaml`).
   """
   offset = _json_too_deep(text)
   if offset is not None:
     line, column = text.count("\n", 0, offset) + 1, offset - text.rfind("\n", 0, offset)
     raise _too_deep(source, f"line {line}, column {column}")
   try:
-    return json.loads(text)
+    return json.loads(text, object_pairs_hook=_unique_keys)
+  except _DuplicateKey as e:
+    raise ConfigError(source, "", f"duplicate key {e.key!r} in one JSON object; expected each key once") from None
   except json.JSONDecodeError as e:
     raise ConfigError(source, f"line {e.lineno}, column {e.colno}",
                       f"not valid JSON: {e.msg}{_expecting(expected)}") from None

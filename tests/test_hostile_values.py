@@ -203,3 +203,28 @@ def test_range_limits_hold_per_range_per_set_and_for_long_digits(monkeypatch):
     procedural_specs(1, MAX_RANGE_COUNT + 1)
   with pytest.raises(ValueError, match=r'\(5015 characters\)'):  # too long for int(): named, not a bare ValueError
     parse_procedural_spec('procedural:L1/' + '1' * 5001)
+
+
+def test_sizes_that_would_exhaust_memory_are_refused_before_any_work(tmp_path, capsys, monkeypatch):
+  """--grid-size, --num-grasps and --samples have documented upper bounds (a 1e5 grid asked for 7 PiB, 1e8 grasps
+  for 80 GB, 1e9 samples overflowed an int32), checked before the mesh is loaded."""
+  monkeypatch.setattr(quality_cli, 'load_object_model', _never, raising=False)
+  out = tmp_path / 'q.json'
+  base = ['builtin:box', '--gripper', 'suction', '--out', out]
+  _bad(capsys, quality_cli.main, [*base, '--grid-size', 100_000], '--grid-size', str(quality_cli.MAX_GRID_SIZE))
+  _bad(capsys, quality_cli.main, [*base, '--num-grasps', 100_000_000], '--num-grasps',
+       str(quality_cli.MAX_NUM_GRASPS))
+  _bad(capsys, quality_cli.main, [*base, '--samples', 1_000_000_000], '--samples', str(quality_cli.MAX_SAMPLES))
+  _bad(capsys, quality_cli.main, [*base, '--samples', 10_000, '--num-grasps', 10_000], '--samples',
+       'grasp samples')
+  assert not out.exists()
+
+
+def test_a_json_grasp_file_with_a_key_given_twice_is_refused(tmp_path, capsys):
+  """JSON would keep the last value of a duplicated key silently (the sweep's centre [5, 5, 5]); like YAML
+  configs, the grasp file is refused, naming the key."""
+  path = tmp_path / 'dup.json'
+  path.write_text('{"grasps": [{"gripper": "parallel_jaw", "center": [0, 0, 0.02], "center": [5, 5, 5], '
+                  '"axis": [1, 0, 0], "approach": [0, 0, -1], "width": 0.05}]}')
+  _bad(capsys, quality_cli.main, ['builtin:box', '--grasps', path, '--out', tmp_path / 'q.json'], 'dup.json',
+       "duplicate key 'center'")

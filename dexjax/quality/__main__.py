@@ -55,11 +55,29 @@ def _parser() -> argparse.ArgumentParser:
   return p
 
 
+MAX_GRID_SIZE = 512
+"""Largest ``--grid-size``: a 512^3 float32 signed distance grid is 0.5 GB (Dex-Net's SDFGen used 100)."""
+
+MAX_NUM_GRASPS = 100_000
+"""Largest ``--num-grasps`` of one run (all are evaluated together; split larger sets over runs)."""
+
+MAX_SAMPLES = 10_000
+"""Largest ``--samples`` (Monte-Carlo draws M per grasp; the seed uses 10 and 25)."""
+
+MAX_GRASP_SAMPLES = 10_000_000
+"""Largest number of grasps x samples of one run (the robust quality's working set grows with it)."""
+
+
 def _check_arguments(args: argparse.Namespace) -> None:
-  """Raises ValueError naming the option and the expected value."""
-  checks = [("--grid-size", args.grid_size >= 16, "an integer >= 16", args.grid_size),
-            ("--num-grasps", args.num_grasps >= 1, "an integer >= 1", args.num_grasps),
-            ("--samples", args.samples is None or args.samples >= 1, "an integer >= 1", args.samples),
+  """Raises ValueError naming the option and the expected value (sizes bounded, so that none exhausts memory)."""
+  grasps = f"an integer in [1, {MAX_NUM_GRASPS}]"
+  checks = [("--grid-size", 16 <= args.grid_size <= MAX_GRID_SIZE, f"an integer in [16, {MAX_GRID_SIZE}]",
+             args.grid_size),
+            ("--num-grasps", 1 <= args.num_grasps <= MAX_NUM_GRASPS, grasps, args.num_grasps),
+            ("--samples", args.samples is None or 1 <= args.samples <= MAX_SAMPLES,
+             f"an integer in [1, {MAX_SAMPLES}]", args.samples),
+            ("--samples", args.samples is None or args.samples * args.num_grasps <= MAX_GRASP_SAMPLES,
+             f"at most {MAX_GRASP_SAMPLES:,} grasp samples with --num-grasps {args.num_grasps}", args.samples),
             ("--threshold", args.threshold is None or 0.0 <= args.threshold <= 1.0, "a probability in [0, 1]",
              args.threshold),
             ("--scale", math.isfinite(args.scale) and args.scale > 0, "a finite number > 0", args.scale)]
