@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_checks import never, one_error_line
 from dexjax import cli
 from dexjax.benchmark import main as benchmark_main
 from dexjax.config import MAX_NESTING, ConfigError, load_yaml, number_hint, parse_json, parse_yaml
@@ -35,19 +36,7 @@ def _cache(cache_dir, monkeypatch):
   monkeypatch.setenv('DEXJAX_CACHE', str(cache_dir))
 
 
-def _never(*_, **__):
-  raise AssertionError('computed before the inputs were checked')
-
-
-def _bad(capsys, main, argv: list, *needles: str) -> str:
-  """Runs a CLI in-process: asserts exit code 2 and exactly one stderr line, ``error: ...`` naming ``needles``,
-  no traceback; returns that line."""
-  assert main([str(a) for a in argv]) == cli.BAD_INPUT_EXIT
-  lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-  assert len(lines) == 1 and lines[0].startswith('error: ') and 'Traceback' not in lines[0], lines
-  for needle in needles:
-    assert str(needle) in lines[0], (needle, lines[0])
-  return lines[0]
+_never, _bad = never, one_error_line  # tests/cli_checks.py
 
 
 def _write(path: Path, text: str) -> Path:
