@@ -81,6 +81,18 @@ def test_scene_stacks_each_slots_model_with_its_pose_and_friction(world, full):
   assert np.all(np.asarray(scene.friction)[~after.mask] == 0.0)
 
 
+def test_the_supervisors_scene_carries_each_objects_resting_load(world, full):
+  """`PickingWorld.loads` in a settled bin: world-frame loads, none pushing an object up (supports are not loads),
+  none in empty slots (the statics are checked in test_resting_loads); the scene of the supervisor holds them, the
+  judges' scene does not."""
+  loads = world.loads(full)
+  assert loads.shape == (full.mask.shape[0], 6) and np.all(np.isfinite(loads))
+  np.testing.assert_array_equal(loads[~full.mask], 0.0)
+  assert np.all(loads[:, 2] <= 1e-6)
+  np.testing.assert_allclose(np.asarray(world.scene(full, loads=True).loads), loads, atol=1e-6)
+  assert world.scene(full).loads is None
+
+
 # --- Trials: the protocol's stopping rules with scripted policies and the real analytic judge -----------------
 
 from dexjax.bench.protocol import Protocol, stop_reason  # noqa: E402

@@ -222,6 +222,30 @@ def test_reward_draws_only_mass_pose_and_disturbance(models):
   assert np.std(np.asarray(draws.mass)) > 0.05 and np.std(np.asarray(draws.disturbance)) > 0.005
 
 
+def test_a_neighbours_load_weighs_like_extra_mass_in_the_objects_frame(models):
+  """``HeapScene.loads`` (world frame) reaches every draw in the target's frame: a cube lying on its side (its
+  frame turned 90 degrees about x) with a known 0.1 kg and a downward load of 0.3 kg's weight at its centre of mass
+  scores draw for draw as the same cube of 0.4 kg; without the load it scores higher."""
+  quarter = (np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0)
+  grasps = jax.tree.map(lambda *xs: jnp.stack(xs), *_off_centre_jaws())
+  n = len(_off_centre_jaws())
+  base = _scene(models, [(CUBE, (0.0, 0.0, 0.02), quarter), (CUBE, (-0.12, 0.12, 0.02), IDENTITY)], friction=0.5)
+  g = 9.81
+  loads = jnp.zeros((P, 6), jnp.float32).at[0, 2].set(-0.3 * g)
+  mass = lambda m: jnp.full(P, m, jnp.float32)
+  batch = lambda scene: _batched_reward(KEY, grasps, jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + x.shape),
+                                                                  scene), BIN)
+  from dexjax.quality.grasp_quality import QualityConfig
+  assert QualityConfig().gravity_acceleration == pytest.approx(g, abs=1e-3)
+  loaded, heavy = batch(base.replace(mass=mass(0.1), loads=loads)), batch(base.replace(mass=mass(0.4), loads=loads * 0))
+  light = batch(base.replace(mass=mass(0.1), loads=loads * 0))
+  np.testing.assert_allclose(np.asarray(loaded.robust_probability), np.asarray(heavy.robust_probability), atol=1e-6)
+  assert np.asarray(light.robust_probability).sum() > np.asarray(loaded.robust_probability).sum() + 1.0
+  # The same load pushing up (a support, which `resting_loads` never reports) would lighten it instead.
+  lifted = batch(base.replace(mass=mass(0.4), loads=-loads))
+  np.testing.assert_allclose(np.asarray(lifted.robust_probability), np.asarray(light.robust_probability), atol=1e-6)
+
+
 def test_boxes_overlap_matches_a_dense_point_test():
   """The separating-axis overlap of an oriented and an axis-aligned box against a brute-force reference: a dense
   lattice of the oriented box tested for inclusion in the other (a lattice point inside proves overlap; none

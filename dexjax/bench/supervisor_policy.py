@@ -15,7 +15,9 @@ highest robust quality over both grippers' candidates:
 2. the ``num_scored`` best collision-free candidates of each gripper scored with the seed's reward in this bin
    (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the object's own friction) with the
    supervisor's M = 25 draws instead of the labels' 10, twice: with the labels' Gamma masses and with the
-   objects' true masses (part of the state it knows);
+   objects' true masses (part of the state it knows); in both, the target carries the load its neighbours press
+   it with at rest (`dexjax.sim.resting_loads`, also state it knows: a box lying across a bar is lifted with the
+   bar until it slides off; ``loads=False`` drops it);
 3. the candidate whose smallest score of the three (the two rewards' robust probabilities, the set quality) is
    highest, over both grippers (ties broken by the true-mass probability, the set's quality, then the parallel
    jaw first), or no grasp: a grasp the labels, the object's real weight and the robot's accelerations all call
@@ -91,12 +93,14 @@ class SupervisorPolicy:
     params: the grippers, perturbations, reward, supervisor settings and bin of the world's labels.
     sets: the (parallel-jaw, suction) `GraspSet` of the world's N objects, (N, K).
     num_scored: candidates per gripper scored with the reward in the bin (static).
+    loads: the reward's target carries its neighbours' resting load (`PickingWorld.loads`).
     privileged: always True: the policy reads the true bin state, not only the image.
   """
 
   params: LabelParams
   sets: tuple[GraspSet, GraspSet]
   num_scored: int = 32
+  loads: bool = True
   privileged: bool = True
 
   def __call__(self, key: jax.Array, observation: Observation, scene: HeapScene, masses: np.ndarray,
@@ -107,7 +111,7 @@ class SupervisorPolicy:
     Args:
       key: key of the reward's draws.
       observation: the policy's observation (its camera's intrinsics turn the grasp into an action).
-      scene: the bin's true `HeapScene` (P slots).
+      scene: the bin's true `HeapScene` (P slots; with its ``loads`` when the policy uses them).
       masses: (P,) each slot's true mass, kg.
       camera: the camera of the image.
       segmentation: (H, W) int32 true segmentation (slot per pixel, negative for the bin or nothing).
@@ -124,8 +128,8 @@ class SupervisorPolicy:
     return jax.device_get(actions[int(np.argmax(ranks))])
 
 
-def supervisor_policy(world: Any, num_grasps: int = 400, num_scored: int = 32,
-                      max_checked: int = 256) -> SupervisorPolicy:
+def supervisor_policy(world: Any, num_grasps: int = 400, num_scored: int = 32, max_checked: int = 256,
+                      loads: bool = True) -> SupervisorPolicy:
   """The `SupervisorPolicy` of a `PickingWorld` (its objects' grasp sets computed or loaded from the world's cache).
 
   As a policy the supervisor samples ``num_grasps`` grasps per object and gripper (the dataset's supervisor:
@@ -137,7 +141,7 @@ def supervisor_policy(world: Any, num_grasps: int = 400, num_scored: int = 32,
   params = world.params.replace(supervisor=world.params.supervisor.replace(boundary=0.0, threshold=0.0,
                                                                            max_checked=max_checked))
   sets = policy_grasp_sets(world.config, world.models, world.cache_dir, num_grasps)
-  return SupervisorPolicy(params=params, sets=sets, num_scored=num_scored)
+  return SupervisorPolicy(params=params, sets=sets, num_scored=num_scored, loads=loads)
 
 
 def policy_grasp_sets(config: Any, models: Any, cache_dir: Any = None, num_grasps: int = 400
@@ -153,7 +157,7 @@ def plan_privileged(policy: SupervisorPolicy, world: Any, key: jax.Array, observ
                     camera: Camera, segmentation: np.ndarray) -> GraspAction:
   """`SupervisorPolicy` on a `BinState` of ``world``: its true scene, masses, segmentation and slot ids."""
   masses = np.array([world.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
-  return policy(key, observation, world.scene(state), masses, camera, segmentation,
+  return policy(key, observation, world.scene(state, loads=policy.loads), masses, camera, segmentation,
                 scene_slot_ids(state.object_ids, state.mask))
 
 

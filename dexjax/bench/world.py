@@ -37,6 +37,7 @@ from dexjax.render.rendering import DepthRenderer, build_render_scene, empty_bin
 from dexjax.objects.collision import HullSettings, cached_collision_hulls
 from dexjax.sim.bodies import heap_objects
 from dexjax.sim.heap import HeapState, sample_heap_state
+from dexjax.sim.resting_loads import resting_loads
 from dexjax.sim.settling import settle
 
 _PROCEDURAL_LEVEL = re.compile(r'procedural:L([123])/')
@@ -171,18 +172,27 @@ class PickingWorld:
     ids[slot] = -1
     return self.settle_again(dataclasses.replace(state, mask=mask, object_ids=ids))
 
-  def scene(self, state: BinState, known_mass: bool = False) -> HeapScene:
+  def scene(self, state: BinState, known_mass: bool = False, loads: bool = False) -> HeapScene:
     """The analytic reward's view of the bin: the objects' models in slot order, poses and friction (and, with
-    ``known_mass``, each object's simulated mass instead of the reward's Gamma draws). The last scene is kept,
-    so the judges and the supervisor of one attempt share one copy of the stacked distance grids."""
-    key = (id(state), known_mass)
+    ``known_mass``, each object's simulated mass instead of the reward's Gamma draws; with ``loads``, the load
+    each object carries from its neighbours at rest, `dexjax.sim.resting_loads.resting_loads`). The last scene is
+    kept, so the judges and the supervisor of one attempt share one copy of the stacked distance grids."""
+    key = (id(state), known_mass, loads)
     if self._scene[0] != key:
       mass = None
       if known_mass:
         mass = np.array([self.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
-      self._scene = (key, heap_scene(self.models, state.object_ids, state.mask, state.poses, state.friction, mass),
-                     state)
+      carried = self.loads(state) if loads else None
+      self._scene = (key, heap_scene(self.models, state.object_ids, state.mask, state.poses, state.friction, mass,
+                                     carried), state)
     return self._scene[1]
+
+  def loads(self, state: BinState) -> np.ndarray:
+    """(P, 6) float32 the load on each slot's object from its neighbours at rest (force N, torque N m about its
+    centre of mass; world frame; `dexjax.sim.resting_loads.resting_loads`), zero in empty slots."""
+    if not state.count:
+      return np.zeros((state.mask.shape[0], 6), np.float32)
+    return resting_loads(self.bodies, self.heap_state(state), state.poses, self.config.settle)
 
   def observe(self, key: jax.Array, state: BinState, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(depth (H, W) float32 metres with the run's sensor noise, NaN where invalid; the true segmentation

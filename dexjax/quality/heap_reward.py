@@ -24,6 +24,8 @@ S = 1 iff, in this order of checks (the first failing one names the `RewardRecor
    = 0) and the Coulomb friction is the target's own, ``HeapScene.friction`` (seed: friction is drawn once
    per object as part of the state, `dexjax.sim.HeapState.friction`). The M draws randomise what the seed
    names: the object mass (Gamma), the gripper position (2.5 mm / 0.1 mm) and the disturbance wrench eps_w.
+   A scene with ``loads`` (the supervisor's privileged state, not the seed's reward) adds the target's: the
+   wrench its neighbours press it with at rest (`dexjax.sim.resting_loads`), fixed in every draw.
 
 Heap objects: `HeapScene` holds the models of the N available objects stacked along a leading axis (all
 built with the same grid size, e.g. `prepare_object_set` output at one ``grid_size``; `stack_models`), and
@@ -54,7 +56,7 @@ from dexjax.quality.gripper_geometry import (jaw_clearance, jaw_collision_points
                                              suction_contact_points, suction_rim_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
                                    robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations,
-                                   with_known_friction, with_known_mass)
+                                   with_known_friction, with_known_mass, with_load)
 
 if TYPE_CHECKING:
   from dexjax.sim.heap import Bin
@@ -80,6 +82,9 @@ class HeapScene:
       (`HeapState.friction`, drawn once per object from the seed's truncated Gaussian).
     mass: None (the seed's reward: the robust quality draws the mass from its Gamma distribution), or (P,) float32
       each slot's known mass, kg (a simulated bin's true masses: the benchmark's ``known_mass`` judge).
+    loads: None (the seed's reward), or (P, 6) float32 the load each slot's object carries from its neighbours
+      at rest: force (N) and torque (N m, about its centre of mass), world frame (`dexjax.sim.resting_loads`);
+      the target's is added to every draw's external wrench.
   """
 
   models: ObjectModel
@@ -88,6 +93,7 @@ class HeapScene:
   poses: jax.Array
   friction: jax.Array
   mass: jax.Array | None = None
+  loads: jax.Array | None = None
 
 
 @struct.dataclass
@@ -146,7 +152,7 @@ def scene_slot_ids(object_ids: Any, mask: Any) -> np.ndarray:
 
 
 def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses: Any, friction: Any,
-               mass: Any = None) -> HeapScene:
+               mass: Any = None, loads: Any = None) -> HeapScene:
   """The `HeapScene` of one heap of P slots from the available objects' models: slot i's model is
   ``models[object_ids[i]]`` (empty slots repeat the first object's; ignored by the reward).
 
@@ -155,6 +161,7 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
     object_ids: (P,) ints into ``models`` (anything where not ``mask``); mask: (P,) bool.
     poses: (P, 7) object-frame poses (xyz metres, wxyz); friction: (P,) Coulomb friction per slot.
     mass: None, or (P,) known mass per slot, kg (see `HeapScene`).
+    loads: None, or (P, 6) each slot's load from its neighbours, world frame (see `HeapScene`).
   """
   mask = np.asarray(mask, bool)
   slot_ids = scene_slot_ids(object_ids, mask)
@@ -162,7 +169,9 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
                    object_ids=jnp.arange(len(slot_ids), dtype=jnp.int32), mask=jnp.asarray(mask),
                    poses=jnp.asarray(poses, jnp.float32),
                    friction=jnp.asarray(np.where(mask, np.asarray(friction), 0.0), jnp.float32),
-                   mass=None if mass is None else jnp.asarray(np.where(mask, np.asarray(mass), 1.0), jnp.float32))
+                   mass=None if mass is None else jnp.asarray(np.where(mask, np.asarray(mass), 1.0), jnp.float32),
+                   loads=None if loads is None else jnp.asarray(np.where(mask[:, None], np.asarray(loads), 0.0),
+                                                                jnp.float32))
 
 
 def slot_distances(scene: HeapScene, points: jax.Array) -> jax.Array:
@@ -232,15 +241,19 @@ def _to_object_frame(pose: jax.Array, point: jax.Array, directions: jax.Array):
   return (point - pose[:3]) @ rot, directions @ rot, rot
 
 
-def _state_perturbations(base: Perturbations, rot: jax.Array, friction: jax.Array, num_samples: int,
-                         mass: jax.Array | None = None) -> Perturbations:
-  """``base`` with what the heap state fixes: gravity along the world's -z expressed in the object frame
-  (object-to-world ``rot``) and the object's Coulomb ``friction`` (and its ``mass`` when known); the rest stays
-  random."""
+def _state_perturbations(base: Perturbations, rot: jax.Array, scene: HeapScene, target: jax.Array,
+                         num_samples: int) -> Perturbations:
+  """``base`` with what the heap state fixes for the object in slot ``target``: gravity along the world's -z
+  expressed in the object frame (object-to-world ``rot``) and the object's Coulomb friction (and its mass and its
+  neighbours' load when the scene knows them); the rest stays random."""
+  slot = jnp.maximum(target, 0)
   down = jnp.asarray(_WORLD_DOWN, jnp.float32) @ rot
-  fixed = with_known_friction(base, friction)
-  if mass is not None:
-    fixed = with_known_mass(fixed, mass)
+  fixed = with_known_friction(base, scene.friction[slot])
+  if scene.mass is not None:
+    fixed = with_known_mass(fixed, scene.mass[slot])
+  if scene.loads is not None:
+    load = scene.loads[slot]
+    fixed = with_load(fixed, jnp.concatenate([load[:3] @ rot, load[3:] @ rot]))
   return fixed.replace(gravity_axis=down, gravity_cone_angle=0.0, num_samples=num_samples)
 
 
@@ -356,8 +369,7 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
   center, dirs, rot = _to_object_frame(obj_pose, grasp.center, jnp.stack([grasp.axis, grasp.approach]))
   local = grasp.replace(center=center, axis=dirs[0], approach=dirs[1])
   base = parallel_jaw_perturbations() if perturbations is None else perturbations
-  pert = _state_perturbations(base, rot, scene.friction[jnp.maximum(target, 0)], params.num_samples,
-                              None if scene.mass is None else scene.mass[jnp.maximum(target, 0)])
+  pert = _state_perturbations(base, rot, scene, target, params.num_samples)
   robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper, pert, params.quality)
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
@@ -378,8 +390,7 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   center, dirs, rot = _to_object_frame(obj_pose, grasp.center, grasp.approach[None])
   local = grasp.replace(center=center, approach=dirs[0])
   base = suction_perturbations() if perturbations is None else perturbations
-  pert = _state_perturbations(base, rot, scene.friction[jnp.maximum(target, 0)], params.num_samples,
-                              None if scene.mass is None else scene.mass[jnp.maximum(target, 0)])
+  pert = _state_perturbations(base, rot, scene, target, params.num_samples)
   robust = robust_suction_quality(key, _target_model(scene, target), local, gripper, pert, params.quality)
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 

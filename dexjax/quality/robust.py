@@ -10,7 +10,8 @@ estimated over ``num_samples`` i.i.d. draws of (seed, "Reward Distribution" and 
   fixes it at the mean (the heap reward: friction is part of the heap state, `with_known_friction`);
 * gravity direction uniform on the sphere (parallel jaw) or uniform within pi/6 of the approach axis (suction;
   the exact distribution rejection sampling would give), or about a fixed axis (world gravity in a heap);
-* disturbance wrench ~ N(0, 0.01^2 I) (newtons and newton metres).
+* disturbance wrench ~ N(0, 0.01^2 I) (newtons and newton metres), plus an optional fixed ``load`` (a heap's
+  neighbours resting on the object: the supervisor's privileged state, `dexjax.sim.resting_loads`; not the seed's).
 
 Draws are a pure function of the key, so one key gives one answer; batch grasps with `jax.vmap`.
 """
@@ -53,6 +54,8 @@ class Perturbations:
     disturbance_sigma: std of each of the 6 disturbance-wrench coordinates (N; N m).
     gravity_cone_angle: gravity is uniform within this angle (rad) of ``gravity_axis``; pi = whole sphere.
     gravity_axis: (3,) axis of the gravity cone in the object frame, or None for the grasp's approach.
+    load: None, or (6,) a fixed wrench added to every draw's disturbance: force (N) and torque (N m, about the
+      centre of mass) in the object frame (`with_load`).
     num_samples: static number of Monte-Carlo draws M.
   """
 
@@ -66,6 +69,7 @@ class Perturbations:
   disturbance_sigma: float = 0.01
   gravity_cone_angle: float = math.pi
   gravity_axis: jax.Array | None = None
+  load: jax.Array | None = None
   num_samples: int = struct.field(pytree_node=False, default=REWARD_SAMPLES)
 
 
@@ -91,6 +95,13 @@ def with_known_mass(perturbations: Perturbations, mass: float | jax.Array) -> Pe
   """``perturbations`` with the object's mass fixed at ``mass`` (kg) instead of drawn from the Gamma distribution
   (e.g. a simulated object's true mass); the other draws are unchanged."""
   return perturbations.replace(mass_mean=mass, mass_variance=0.0)
+
+
+def with_load(perturbations: Perturbations, load: jax.Array) -> Perturbations:
+  """``perturbations`` with a fixed external ``load`` (6,) on the object in every draw: force (N) and torque
+  (N m, about the centre of mass), object frame; e.g. the neighbours resting on it in a heap
+  (`dexjax.sim.resting_loads`). The random disturbance and the other draws are unchanged."""
+  return perturbations.replace(load=jnp.asarray(load, jnp.float32))
 
 
 @struct.dataclass
@@ -124,16 +135,19 @@ def sample_conditions(key: jax.Array, perturbations: Perturbations, approach: ja
   axis = approach if p.gravity_axis is None else p.gravity_axis
   gravity = sample_cone(k_grav, axis, p.gravity_cone_angle)
   disturbance = p.disturbance_sigma * jax.random.normal(k_dist, (6,))
+  if p.load is not None:
+    disturbance = disturbance + p.load
   return Conditions(mass=mass, friction=friction, gravity=gravity, disturbance=disturbance)
 
 
 def nominal_conditions(perturbations: Perturbations, approach: jax.Array) -> Conditions:
   """The unperturbed conditions: mean mass and friction, gravity along the cone axis (default: the approach,
-  the object hanging below the gripper), no disturbance."""
+  the object hanging below the gripper), no random disturbance (the fixed ``load``, if any)."""
   p = perturbations
   axis = approach if p.gravity_axis is None else p.gravity_axis
+  load = jnp.zeros(6, jnp.float32) if p.load is None else jnp.asarray(p.load, jnp.float32)
   return Conditions(mass=jnp.asarray(p.mass_mean, jnp.float32), friction=jnp.asarray(p.friction_mean, jnp.float32),
-                    gravity=normalize(jnp.asarray(axis, jnp.float32)), disturbance=jnp.zeros(6, jnp.float32))
+                    gravity=normalize(jnp.asarray(axis, jnp.float32)), disturbance=load)
 
 
 def _perturb_pose(key, perturbations: Perturbations, center, directions):

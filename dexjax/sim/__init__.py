@@ -3,7 +3,8 @@
 `sample_heap_state` draws a heap's initial state (pure JAX, `vmap` over keys); `heap_object` turns a mesh and
 its convex pieces into a rigid body (with the object's own density when it has one, as procedural objects do);
 `settle` drops and settles batches of heaps with the MuJoCo C engine (``backend='rollout'``) or MJX
-(``backend='mjx'``), flagging objects that leave the bin or never come to rest.
+(``backend='mjx'``), flagging objects that leave the bin or never come to rest; `resting_loads` measures the loads
+the objects of a settled heap put on each other.
 See ``docs/heaps.md``.
 """
 
@@ -16,6 +17,7 @@ from dexjax.sim.scene import (SettleSettings, bin_boxes, build_heap_model, compi
                               heap_spec, initial_qpos, quat_to_matrix)
 from dexjax.sim.mjx_backend import SettleTimeout
 from dexjax.sim.rest import object_speeds, resting, rotate
+from dexjax.sim.resting_loads import resting_loads
 from dexjax.sim.settling import BACKENDS, SettleResult, default_backend, settle
 
 __all__ = [
@@ -26,7 +28,7 @@ __all__ = [
     "truncated_poisson_pmf",
     "SettleSettings", "bin_boxes", "build_heap_model", "compile_heap", "heap_spec", "drop_poses", "heap_slots", "initial_qpos", "quat_to_matrix",
     "BACKENDS", "SettleResult", "SettleTimeout", "default_backend", "HeapRow", "posed_meshes",
-    "save_heap_sheet", "procedural_heap_rows", "object_speeds", "resting", "rotate", "settle",
+    "save_heap_sheet", "procedural_heap_rows", "object_speeds", "resting", "resting_loads", "rotate", "settle",
 ]
 
 
