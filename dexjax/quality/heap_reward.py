@@ -56,7 +56,7 @@ from dexjax.quality.gripper_geometry import (jaw_clearance, jaw_collision_points
                                              suction_contact_points, suction_rim_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
                                    robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations,
-                                   with_known_friction, with_known_mass, with_load)
+                                   with_known_friction, with_known_mass)
 
 if TYPE_CHECKING:
   from dexjax.sim.heap import Bin
@@ -244,17 +244,22 @@ def _to_object_frame(pose: jax.Array, point: jax.Array, directions: jax.Array):
 def _state_perturbations(base: Perturbations, rot: jax.Array, scene: HeapScene, target: jax.Array,
                          num_samples: int) -> Perturbations:
   """``base`` with what the heap state fixes for the object in slot ``target``: gravity along the world's -z
-  expressed in the object frame (object-to-world ``rot``) and the object's Coulomb friction (and its mass and its
-  neighbours' load when the scene knows them); the rest stays random."""
+  expressed in the object frame (object-to-world ``rot``) and the object's Coulomb friction (and its mass when
+  the scene knows it); the rest stays random."""
   slot = jnp.maximum(target, 0)
   down = jnp.asarray(_WORLD_DOWN, jnp.float32) @ rot
   fixed = with_known_friction(base, scene.friction[slot])
   if scene.mass is not None:
     fixed = with_known_mass(fixed, scene.mass[slot])
-  if scene.loads is not None:
-    load = scene.loads[slot]
-    fixed = with_load(fixed, jnp.concatenate([load[:3] @ rot, load[3:] @ rot]))
   return fixed.replace(gravity_axis=down, gravity_cone_angle=0.0, num_samples=num_samples)
+
+
+def _target_load(scene: HeapScene, rot: jax.Array, target: jax.Array) -> jax.Array | None:
+  """(6,) the target's neighbours' load in its frame (object-to-world ``rot``), or None without scene loads."""
+  if scene.loads is None:
+    return None
+  load = scene.loads[jnp.maximum(target, 0)]
+  return jnp.concatenate([load[:3] @ rot, load[3:] @ rot])
 
 
 def _select_target(contacted: jax.Array, center_distance: jax.Array) -> jax.Array:
@@ -370,7 +375,8 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
   local = grasp.replace(center=center, axis=dirs[0], approach=dirs[1])
   base = parallel_jaw_perturbations() if perturbations is None else perturbations
   pert = _state_perturbations(base, rot, scene, target, params.num_samples)
-  robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper, pert, params.quality)
+  robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper, pert, params.quality,
+                                       _target_load(scene, rot, target))
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
 
@@ -391,7 +397,8 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   local = grasp.replace(center=center, approach=dirs[0])
   base = suction_perturbations() if perturbations is None else perturbations
   pert = _state_perturbations(base, rot, scene, target, params.num_samples)
-  robust = robust_suction_quality(key, _target_model(scene, target), local, gripper, pert, params.quality)
+  robust = robust_suction_quality(key, _target_model(scene, target), local, gripper, pert, params.quality,
+                                  _target_load(scene, rot, target))
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
 

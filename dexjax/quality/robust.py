@@ -10,8 +10,8 @@ estimated over ``num_samples`` i.i.d. draws of (seed, "Reward Distribution" and 
   fixes it at the mean (the heap reward: friction is part of the heap state, `with_known_friction`);
 * gravity direction uniform on the sphere (parallel jaw) or uniform within pi/6 of the approach axis (suction;
   the exact distribution rejection sampling would give), or about a fixed axis (world gravity in a heap);
-* disturbance wrench ~ N(0, 0.01^2 I) (newtons and newton metres), plus an optional fixed ``load`` (a heap's
-  neighbours resting on the object: the supervisor's privileged state, `dexjax.sim.resting_loads`; not the seed's).
+* disturbance wrench ~ N(0, 0.01^2 I) (newtons and newton metres); the robust qualities take an optional fixed
+  ``load`` besides (a heap's neighbours pressing on the object: the supervisor's state, not the seed's).
 
 Draws are a pure function of the key, so one key gives one answer; batch grasps with `jax.vmap`.
 """
@@ -54,8 +54,6 @@ class Perturbations:
     disturbance_sigma: std of each of the 6 disturbance-wrench coordinates (N; N m).
     gravity_cone_angle: gravity is uniform within this angle (rad) of ``gravity_axis``; pi = whole sphere.
     gravity_axis: (3,) axis of the gravity cone in the object frame, or None for the grasp's approach.
-    load: None, or (6,) a fixed wrench added to every draw's disturbance: force (N) and torque (N m, about the
-      centre of mass) in the object frame (`with_load`).
     num_samples: static number of Monte-Carlo draws M.
   """
 
@@ -69,7 +67,6 @@ class Perturbations:
   disturbance_sigma: float = 0.01
   gravity_cone_angle: float = math.pi
   gravity_axis: jax.Array | None = None
-  load: jax.Array | None = None
   num_samples: int = struct.field(pytree_node=False, default=REWARD_SAMPLES)
 
 
@@ -95,13 +92,6 @@ def with_known_mass(perturbations: Perturbations, mass: float | jax.Array) -> Pe
   """``perturbations`` with the object's mass fixed at ``mass`` (kg) instead of drawn from the Gamma distribution
   (e.g. a simulated object's true mass); the other draws are unchanged."""
   return perturbations.replace(mass_mean=mass, mass_variance=0.0)
-
-
-def with_load(perturbations: Perturbations, load: jax.Array) -> Perturbations:
-  """``perturbations`` with a fixed external ``load`` (6,) on the object in every draw: force (N) and torque
-  (N m, about the centre of mass), object frame; e.g. the neighbours resting on it in a heap
-  (`dexjax.sim.resting_loads`). The random disturbance and the other draws are unchanged."""
-  return perturbations.replace(load=jnp.asarray(load, jnp.float32))
 
 
 @struct.dataclass
@@ -135,19 +125,16 @@ def sample_conditions(key: jax.Array, perturbations: Perturbations, approach: ja
   axis = approach if p.gravity_axis is None else p.gravity_axis
   gravity = sample_cone(k_grav, axis, p.gravity_cone_angle)
   disturbance = p.disturbance_sigma * jax.random.normal(k_dist, (6,))
-  if p.load is not None:
-    disturbance = disturbance + p.load
   return Conditions(mass=mass, friction=friction, gravity=gravity, disturbance=disturbance)
 
 
 def nominal_conditions(perturbations: Perturbations, approach: jax.Array) -> Conditions:
   """The unperturbed conditions: mean mass and friction, gravity along the cone axis (default: the approach,
-  the object hanging below the gripper), no random disturbance (the fixed ``load``, if any)."""
+  the object hanging below the gripper), no disturbance."""
   p = perturbations
   axis = approach if p.gravity_axis is None else p.gravity_axis
-  load = jnp.zeros(6, jnp.float32) if p.load is None else jnp.asarray(p.load, jnp.float32)
   return Conditions(mass=jnp.asarray(p.mass_mean, jnp.float32), friction=jnp.asarray(p.friction_mean, jnp.float32),
-                    gravity=normalize(jnp.asarray(axis, jnp.float32)), disturbance=load)
+                    gravity=normalize(jnp.asarray(axis, jnp.float32)), disturbance=jnp.zeros(6, jnp.float32))
 
 
 def _perturb_pose(key, perturbations: Perturbations, center, directions):
@@ -201,6 +188,14 @@ def robust_jaw_samples(model: ObjectModel, grasp: ParallelJawGrasp, gripper: Par
   return nearest_jaw_samples(model, grasp, gripper, config.geometry, NEAREST_SAMPLES)
 
 
+def _with_load(evaluate, load):
+  """``evaluate`` with a fixed ``load`` (6,) added to every draw's disturbance (None: unchanged)."""
+  if load is None:
+    return evaluate
+  load = jnp.asarray(load, jnp.float32)
+  return lambda g, c: evaluate(g, c.replace(disturbance=c.disturbance + load))
+
+
 def _robust(key, grasp, perturbations, evaluate) -> RobustQuality:
   outcomes = map_draws(key, grasp, perturbations, evaluate)
   return RobustQuality(probability=jnp.mean(outcomes.resists.astype(jnp.float32)), outcomes=outcomes)
@@ -209,24 +204,30 @@ def _robust(key, grasp, perturbations, evaluate) -> RobustQuality:
 def robust_parallel_jaw_quality(key: jax.Array, model: ObjectModel, grasp: ParallelJawGrasp,
                                 gripper: ParallelJawGripper = ParallelJawGripper(),
                                 perturbations: Perturbations | None = None,
-                                config: QualityConfig = QualityConfig()) -> RobustQuality:
+                                config: QualityConfig = QualityConfig(),
+                                load: jax.Array | None = None) -> RobustQuality:
   """Probability that a parallel-jaw grasp resists gravity plus a random disturbance (Dex-Net 4.0).
 
   Every draw runs the whole `parallel_jaw_quality`, including ``jaw_collision`` at the draw's perturbed pose
   (the pose noise moves the fingers): the gripper's collision samples are ranked once by their distance to
   the object at the nominal pose, and the ``NEAREST_SAMPLES`` (64) nearest are tested at every draw's pose
   (`nearest_jaw_samples`; with point jaws nothing is tested).
+
+  ``load``: None (the seed), or (6,) a fixed wrench on the object in every draw besides gravity and the random
+  disturbance: force (N) and torque (N m, about the centre of mass), object frame (e.g. what its neighbours in a
+  heap press it with, `dexjax.sim.resting_loads`; not a distribution parameter, so not in `Perturbations`).
   """
   perturbations = parallel_jaw_perturbations() if perturbations is None else perturbations
   samples = robust_jaw_samples(model, grasp, gripper, config)
   evaluate = lambda g, c: parallel_jaw_quality(model, g, gripper, c, config, samples)
-  return _robust(key, grasp, perturbations, evaluate)
+  return _robust(key, grasp, perturbations, _with_load(evaluate, load))
 
 
 def robust_suction_quality(key: jax.Array, model: ObjectModel, grasp: SuctionGrasp,
                            gripper: SuctionGripper = SuctionGripper(), perturbations: Perturbations | None = None,
-                           config: QualityConfig = QualityConfig()) -> RobustQuality:
-  """Probability that a suction grasp seals and resists gravity plus a random disturbance (Dex-Net 4.0)."""
+                           config: QualityConfig = QualityConfig(), load: jax.Array | None = None) -> RobustQuality:
+  """Probability that a suction grasp seals and resists gravity plus a random disturbance (Dex-Net 4.0); ``load``
+  as `robust_parallel_jaw_quality`'s."""
   perturbations = suction_perturbations() if perturbations is None else perturbations
   evaluate = lambda g, c: suction_quality(model, g, gripper, c, config)
-  return _robust(key, grasp, perturbations, evaluate)
+  return _robust(key, grasp, perturbations, _with_load(evaluate, load))
