@@ -6,9 +6,10 @@ finite number, an integer field an integer, a tuple field a list of the same len
 A nested parameter dataclass (e.g. ``QualityConfig.geometry``) takes a mapping of its own fields.
 Anything else (an unknown section or field, a string where a number belongs, a NaN) raises `ConfigError`
 naming the file, the dotted field path and what was expected. Range checks (e.g. "positive") are the
-caller's, through ``minimum``; rules that tie fields together (``min_width <= max_width``, a friction range
-with ``low <= high``, ``min_count <= max_count``) are checked by `check_fields` tables: `validate_perturbations`,
-`validate_heap_distribution` and `validate_generate_config` here, ``validate`` of the grippers.
+caller's, through ``minimum``; the limits of every field (e.g. sizes of a gripper at most 1 m) and the rules
+that tie fields together (``min_width <= max_width``, a friction range with ``low <= high``) are checked by
+`check_fields` tables: `validate_perturbations`, `validate_heap_distribution` and `validate_generate_config` of
+`dexjax.config_rules` (also importable from here), ``validate`` of the grippers.
 
 Every structured file dexjax reads (configs, grasp files, camera and intrinsics files, run records) is parsed by
 `parse_yaml` or `parse_json`, which refuse hostile input with a one-line `ConfigError` naming the file, the line
@@ -29,14 +30,10 @@ from typing import Any, Mapping
 
 import yaml
 
-
-class ConfigError(ValueError):
-  """A configuration file or value is invalid; the message names the file, the field and the expected value."""
-
-  def __init__(self, source: str, field: str, problem: str):
-    self.source, self.field, self.problem = source, field, problem
-    where = f"{source}: {field}" if field else source
-    super().__init__(f"{where}: {problem}")
+# The value rules and limits live in dexjax.config_rules; they are part of this module's interface too.
+from dexjax.config_rules import (MAX_GRID_SIZE, ConfigError, Rule, check_fields, count_rule,  # noqa: F401
+                                 number_or_nan, number_rule, perturbation_rules, validate_generate_config,
+                                 validate_heap_distribution, validate_perturbations)
 
 
 #: Deepest nesting of lists and mappings accepted in a structured input file (dexjax's own files nest at most
@@ -348,111 +345,6 @@ def check_sections(data: Mapping[str, Any], allowed: tuple[str, ...], *, source:
     if name not in allowed:
       where = f"{section}.{name}" if section else str(name)
       raise ConfigError(source, where, f"unknown section; expected one of {', '.join(allowed)}")
-
-
-Rule = tuple[str, bool, str]
-"""(field, holds, expected): one row of a `check_fields` table."""
-
-
-def check_fields(rules: list[Rule], params: Any, *, source: str, section: str = "") -> Any:
-  """Returns ``params`` if every rule holds; else raises `ConfigError` for the first that does not, naming
-  ``source``, the dotted field ``section.field``, the expected value and the value found in ``params``."""
-  for field, holds, expected in rules:
-    if not holds:
-      where = f"{section}.{field}" if section else field
-      raise ConfigError(source, where, f"expected {expected}, got {_field_value(params, field)!r}")
-  return params
-
-
-def _field_value(params: Any, field: str) -> Any:
-  """The value of ``field`` (``name`` or ``name[i]``) of ``params``, as plain Python."""
-  name, _, index = field.partition("[")
-  value = getattr(params, name, None)
-  if index:
-    value = value[int(index.rstrip("]"))]
-  try:
-    return float(value) if not isinstance(value, (int, str, tuple, type(None))) else value
-  except TypeError:
-    return value
-
-
-def number_or_nan(value: Any) -> float:
-  """``value`` as a float; NaN for anything that is not a concrete finite number (a tracer, None, a string)."""
-  try:
-    x = float(value)
-  except (TypeError, ValueError):
-    return math.nan
-  return x if math.isfinite(x) else math.nan
-
-
-def _range_rules(name: str, pair: Any, what: str) -> list[Rule]:
-  """Rules of a non-negative (low, high) pair: both finite, 0 <= low <= high."""
-  low, high = number_or_nan(pair[0]), number_or_nan(pair[1])
-  return [(f"{name}[0]", low >= 0, f"a finite number >= 0 ({what})"),
-          (f"{name}[1]", high >= low, f"a finite number >= {name}[0] = {pair[0]} (low <= high; {what})")]
-
-
-def perturbation_rules(p: Any) -> list[Rule]:
-  """Cross-field rules of a `dexjax.quality.Perturbations` (mass, friction, noise, gravity cone)."""
-  low, high = number_or_nan(p.friction_range[0]), number_or_nan(p.friction_range[1])
-  axis = p.gravity_axis
-  return [
-      ("mass_mean", number_or_nan(p.mass_mean) > 0, "a number > 0 (kg)"),
-      ("mass_variance", number_or_nan(p.mass_variance) > 0, "a number > 0 (kg^2; the mass is Gamma distributed)"),
-      *_range_rules("friction_range", p.friction_range, "the friction truncation interval"),
-      ("friction_mean", number_or_nan(p.friction_mean) >= 0, "a finite number >= 0"),
-      ("friction_range", number_or_nan(p.friction_variance) == 0 or high > low,
-       "low < high when friction_variance > 0 (a truncated normal needs an interval)"),
-      ("gravity_cone_angle", 0 <= number_or_nan(p.gravity_cone_angle) <= math.pi, "an angle in [0, pi] (radians)"),
-      ("gravity_axis", axis is None or (len(axis) == 3 and not any(math.isnan(number_or_nan(a)) for a in axis)
-                                        and any(number_or_nan(a) != 0 for a in axis)),
-       "null or 3 finite numbers, not all zero"),
-      ("num_samples", isinstance(p.num_samples, int) and p.num_samples >= 1, "an integer >= 1"),
-  ]
-
-
-def validate_perturbations(p: Any, *, source: str = "Perturbations", section: str = "") -> Any:
-  """`check_fields` with `perturbation_rules`; returns ``p``."""
-  return check_fields(perturbation_rules(p), p, source=source, section=section)
-
-
-def validate_heap_distribution(h: Any, *, source: str = "HeapDistribution", section: str = "heap") -> Any:
-  """Cross-field rules of a `dexjax.sim.HeapDistribution` (object counts, drop region, friction); returns ``h``."""
-  low, high = number_or_nan(h.friction_range[0]), number_or_nan(h.friction_range[1])
-  rules = [
-      ("count_mean", number_or_nan(h.count_mean) > 0, "a number > 0 (objects)"),
-      ("min_count", isinstance(h.min_count, int) and h.min_count >= 1, "an integer >= 1"),
-      ("max_count", isinstance(h.max_count, int) and h.max_count >= h.min_count,
-       f"an integer >= min_count = {h.min_count}"),
-      ("count_truncation", h.count_truncation in ("condition", "clip"), "'condition' or 'clip'"),
-      ("drop_height", number_or_nan(h.drop_height) > 0, "a number > 0 (metres above the bin floor)"),
-      *_range_rules("friction_range", h.friction_range, "the friction truncation interval"),
-      ("friction_range", number_or_nan(h.friction_variance) == 0 or high > low,
-       "low < high when friction_variance > 0 (a truncated normal needs an interval)"),
-  ]
-  return check_fields(rules, h, source=source, section=section)
-
-
-def validate_generate_config(config: Any, source: str = "<config>") -> Any:
-  """Cross-field rules of a `dexjax.generate.GenerateConfig` that its sections' own checks leave out (heap
-  counts and friction, both grippers and their perturbation models, reward, samplers); returns ``config``.
-
-  Raises:
-    ConfigError: naming ``source``, the dotted field and the expected value.
-  """
-  validate_heap_distribution(config.heap, source=source, section="heap")
-  settings = config.grippers
-  settings.parallel_jaw.validate(source, "grippers.parallel_jaw")
-  settings.suction.validate(source, "grippers.suction")
-  for name in ("parallel_jaw", "suction"):
-    validate_perturbations(settings.perturbations(name), source=source, section=f"perturbations.{name}")
-  reward = config.reward
-  check_fields([("threshold", 0 <= number_or_nan(reward.threshold) <= 1, "a probability in [0, 1]"),
-                ("num_samples", reward.num_samples >= 1, "an integer >= 1")], reward, source=source, section="reward")
-  for name, sampler in (("parallel_jaw", config.parallel_jaw_sampler), ("suction", config.suction_sampler)):
-    check_fields([("num_grasps", sampler.num_grasps >= 1, "an integer >= 1")], sampler, source=source,
-                 section=f"samplers.{name}")
-  return config
 
 
 def plain_json(value: Any, *, nan_to_none: bool = False) -> Any:

@@ -1,8 +1,9 @@
 """Gripper parameters as frozen pytrees, with the Dex-Net 4.0 defaults (ABB YuMi jaws and a 20 mm suction cup).
 
 Float fields are pytree leaves (they can be traced, batched or differentiated); integer fields that set array
-shapes are static metadata, so changing them recompiles. ``validate()`` checks the fields and the rules that tie
-them together (e.g. ``min_width < max_width``) eagerly, before any computing.
+shapes are static metadata, so changing them recompiles. ``validate()`` checks the fields, their limits (lengths at
+most 1 m, forces at most 1e5 N, static counts at most 1024: `dexjax.config_rules`) and the rules that tie them
+together (e.g. ``min_width < max_width``) eagerly, before any computing.
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ import jax
 import numpy as np
 from flax import struct
 
-from dexjax.config import check_fields, number_or_nan
+from dexjax.config_rules import (MAX_FORCE, MAX_GRIPPER_SIZE, MAX_STATIC_COUNT, check_fields, count_rule, number_or_nan,
+                                 number_rule)
 
 STANDARD_GRAVITY = 9.81  # m/s^2
 
@@ -84,24 +86,28 @@ class ParallelJawGripper:
       return self
     thickness, length = number_or_nan(self.finger_thickness), number_or_nan(self.finger_length)
     needed = number_or_nan(self.max_width) + 2.0 * thickness
+
+    def size(field: str, unit: str = 'metres', low_open: bool = True):  # a length of at most MAX_GRIPPER_SIZE
+      return number_rule(field, getattr(self, field), 0, MAX_GRIPPER_SIZE, unit, low_open=low_open)
+
     return check_fields([
-        ('max_width', number_or_nan(self.max_width) > 0, 'a number > 0 (metres)'),
+        size('max_width'),
         ('min_width', 0 <= number_or_nan(self.min_width) < number_or_nan(self.max_width),
          f'a number in [0, max_width = {self.max_width}) (metres)'),
-        ('force_limit', number_or_nan(self.force_limit) > 0, 'a number > 0 (newtons)'),
-        ('finger_radius', number_or_nan(self.finger_radius) >= 0, 'a number >= 0 (metres)'),
-        ('num_cone_edges', self.num_cone_edges >= 3, 'an integer >= 3'),
-        ('num_line_samples', self.num_line_samples >= 2, 'an integer >= 2'),
-        ('finger_thickness', thickness >= 0, 'a number >= 0 (metres; 0 = point jaws)'),
-        ('finger_width', number_or_nan(self.finger_width) > 0, 'a number > 0 (metres)'),
-        ('finger_length', length > 0, 'a number > 0 (metres)'),
+        number_rule('force_limit', self.force_limit, 0, MAX_FORCE, 'newtons', low_open=True),
+        size('finger_radius', low_open=False),
+        count_rule('num_cone_edges', self.num_cone_edges, 3, MAX_STATIC_COUNT),
+        count_rule('num_line_samples', self.num_line_samples, 2, MAX_STATIC_COUNT),
+        size('finger_thickness', 'metres; 0 = point jaws', low_open=False),
+        size('finger_width'),
+        size('finger_length'),
         ('tip_depth', 0 <= number_or_nan(self.tip_depth) <= length,
          f'a number in [0, finger_length = {self.finger_length}] (metres; the pads must reach the grasp centre)'),
-        ('palm_depth', number_or_nan(self.palm_depth) > 0, 'a number > 0 (metres)'),
-        ('palm_width', number_or_nan(self.palm_width) >= needed - 1e-9,
-         f'a number >= max_width + 2 finger_thickness = {needed:.6g} (metres; the palm carries both fingers '
-         'at the widest opening)'),
-        ('palm_height', number_or_nan(self.palm_height) > 0, 'a number > 0 (metres)'),
+        size('palm_depth'),
+        ('palm_width', needed - 1e-9 <= number_or_nan(self.palm_width) <= 3 * MAX_GRIPPER_SIZE,
+         f'a number in [max_width + 2 finger_thickness = {needed:.6g}, {3 * MAX_GRIPPER_SIZE:g}] (metres; the palm '
+         'carries both fingers at the widest opening)'),
+        size('palm_height'),
     ], self, source=source, section=section)
 
 
@@ -148,16 +154,16 @@ class SuctionGripper:
     if _not_concrete(self):
       return self
     return check_fields([
-        ('cup_radius', number_or_nan(self.cup_radius) > 0, 'a number > 0 (metres)'),
-        ('cone_height', number_or_nan(self.cone_height) > 0, 'a number > 0 (metres)'),
-        ('vacuum_force', number_or_nan(self.vacuum_force) > 0, 'a number > 0 (newtons)'),
-        ('elastic_limit', number_or_nan(self.elastic_limit) >= 0, 'a number >= 0 (newtons per radian)'),
+        number_rule('cup_radius', self.cup_radius, 0, MAX_GRIPPER_SIZE, 'metres', low_open=True),
+        number_rule('cone_height', self.cone_height, 0, MAX_GRIPPER_SIZE, 'metres', low_open=True),
+        number_rule('vacuum_force', self.vacuum_force, 0, MAX_FORCE, 'newtons', low_open=True),
+        number_rule('elastic_limit', self.elastic_limit, 0, MAX_FORCE, 'newtons per radian'),
         ('max_strain', 0 < number_or_nan(self.max_strain) < 1, 'a fraction in (0, 1)'),
-        ('bellows_stiffness', number_or_nan(self.bellows_stiffness) >= 0, 'a number >= 0 (N m per radian)'),
-        ('contact_tolerance', number_or_nan(self.contact_tolerance) > 0, 'a number > 0 (metres)'),
-        ('num_ring_vertices', self.num_ring_vertices >= 3, 'an integer >= 3'),
-        ('num_edge_subsamples', self.num_edge_subsamples >= 0, 'an integer >= 0'),
-        ('num_ray_steps', self.num_ray_steps >= 1, 'an integer >= 1'),
+        number_rule('bellows_stiffness', self.bellows_stiffness, 0, MAX_FORCE, 'N m per radian'),
+        number_rule('contact_tolerance', self.contact_tolerance, 0, MAX_GRIPPER_SIZE, 'metres', low_open=True),
+        count_rule('num_ring_vertices', self.num_ring_vertices, 3, MAX_STATIC_COUNT),
+        count_rule('num_edge_subsamples', self.num_edge_subsamples, 0, MAX_STATIC_COUNT),
+        count_rule('num_ray_steps', self.num_ray_steps, 1, MAX_STATIC_COUNT),
     ], self, source=source, section=section)
 
 

@@ -112,7 +112,7 @@ def _camera_pose(path: str):
   """(4, 4) world-from-camera matrix from a camera JSON (rotation, position) or a 4 x 4 matrix (JSON, .npy)."""
   import numpy as np  # pylint: disable=g-import-not-at-top
   from dexjax.config import parse_json  # pylint: disable=g-import-not-at-top
-  from dexjax.render.intrinsics_io import load_camera  # pylint: disable=g-import-not-at-top
+  from dexjax.render.intrinsics_io import load_pose  # pylint: disable=g-import-not-at-top
   if path.endswith('.npy'):
     matrix = np.load(path, allow_pickle=False)
   else:
@@ -123,10 +123,9 @@ def _camera_pose(path: str):
       raise ValueError(f'{path}: not a text file (byte {e.start} is not UTF-8); expected a camera JSON or a 4 x 4 '
                        'matrix') from None
     data = parse_json(text, path, expected='a camera JSON (rotation, position) or a 4 x 4 matrix')
-    if isinstance(data, dict):
-      camera = load_camera(path)
+    if isinstance(data, dict):  # a camera file: only its pose is read (its intrinsics, if any, are --intrinsics')
       matrix = np.eye(4)
-      matrix[:3, :3], matrix[:3, 3] = np.asarray(camera.rotation), np.asarray(camera.position)
+      matrix[:3, :3], matrix[:3, 3] = load_pose(path)
     else:
       matrix = np.asarray(data, dtype=float)
   matrix = np.asarray(matrix, dtype=float)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from dexjax import cli
 
 
@@ -19,3 +21,9 @@ def one_error_line(capsys, main, argv: list, *needles: str) -> str:
   for needle in needles:
     assert str(needle) in lines[0], (needle, lines[0])
   return lines[0]
+
+
+def digests(root: Path) -> dict[str, bytes]:
+  """The bytes of every file under ``root`` by path: equal before and after a refused command when nothing was
+  written, changed or added (no lock file either)."""
+  return {str(p): p.read_bytes() for p in Path(root).rglob('*') if p.is_file()}

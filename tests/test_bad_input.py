@@ -36,6 +36,7 @@ from dexjax.sim.__main__ import main as sim_main
 from dexjax.train.__main__ import main as train_main
 
 sys.path.insert(0, os.path.dirname(__file__))
+from cli_checks import digests, never, one_error_line  # pylint: disable=g-import-not-at-top,wrong-import-position
 from test_train_loop import _write_dataset  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 BINARY = bytes(range(256)) * 8  # not UTF-8, not a zip, not a mesh
@@ -56,10 +57,6 @@ def files(tmp_path) -> dict[str, Path]:
     f[key].write_text('my own precious file\n')
   f['dir'].mkdir()
   return f
-
-
-def _digests(root: Path) -> dict[str, bytes]:
-  return {str(p): p.read_bytes() for p in root.rglob('*') if p.is_file()}
 
 
 def _bad(capsys, main, argv: list[str], *needles: str, code: int = cli.BAD_INPUT_EXIT) -> str:
@@ -199,7 +196,7 @@ def test_file_outputs_are_checked_before_computing(files, tmp_path, capsys, monk
   monkeypatch.setattr(sim_cli, 'load_object_set', _never)
   monkeypatch.setattr(render_cli, 'load_object_set', _never)
   monkeypatch.setattr(render_cli, 'sample_camera', _never)
-  before = _digests(tmp_path)
+  before = digests(tmp_path)
   q = ['builtin:cube', '--gripper', 'suction', '--num-grasps', '2', '--out']
   for main, argv, option in [
       (quality_main, q, '--out'),
@@ -213,7 +210,7 @@ def test_file_outputs_are_checked_before_computing(files, tmp_path, capsys, monk
   _bad(capsys, sim_main, ['preview', files['user_png']], 'OUT.png', 'mine.png', 'not written by this command')
   _bad(capsys, render_main, ['heap', tmp_path / 'd.png', '--npz', files['user_npz']], '--npz', 'mine.npz')
   _bad(capsys, render_main, ['heap', tmp_path / 'd.png', '--npz', tmp_path / 'd.png'], 'expected distinct files')
-  assert _digests(tmp_path) == before  # nothing written, nothing changed
+  assert digests(tmp_path) == before  # nothing written, nothing changed
 
 
 def test_generate_never_clobbers_a_users_files(files, tmp_path, capsys, monkeypatch):
@@ -223,7 +220,7 @@ def test_generate_never_clobbers_a_users_files(files, tmp_path, capsys, monkeypa
   mine.mkdir()
   (mine / 'config.json').write_text('{"my": "experiment settings"}')
   (mine / 'preview.png').write_bytes(b'\x89PNG\r\n\x1a\n my picture')
-  before = _digests(tmp_path)
+  before = digests(tmp_path)
   _bad(capsys, generate_main, ['--out', mine, '--num-images', '1'], '--out', 'my_data', "'config.json'",
        'did not write')
   (mine / 'config.json').unlink()
@@ -236,16 +233,16 @@ def test_generate_never_clobbers_a_users_files(files, tmp_path, capsys, monkeypa
   _bad(capsys, generate_main, ['--out', notes, '--num-images', '1'], 'is not empty', 'notes.txt',
        'holds no dataset run')
   _bad(capsys, generate_main, ['--out', files['user_json'], '--num-images', '1'], 'is not a directory')
-  assert _digests(tmp_path) == before
+  assert digests(tmp_path) == before
 
 
 def test_generate_accepts_its_own_run_directory(tmp_path):
-  from dexjax.data.shards import MANIFEST_NAME
+  from dexjax.data import MANIFEST_NAME, Manifest
   from dexjax.generate.run import check_run_dir
   assert check_run_dir(tmp_path / 'new' / 'run') == tmp_path / 'new' / 'run'
   run = tmp_path / 'run'
   run.mkdir()
-  (run / MANIFEST_NAME).write_text('{}')
+  (run / MANIFEST_NAME).write_text(Manifest('abc', 0, 1).to_json())  # a run's manifest (a '{}' is refused)
   (run / 'config.json').write_text(json.dumps({'fingerprint': 'abc', 'config': {}}))
   (run / 'notes.txt').write_text('a user may keep notes in a run directory: never written')
   (run / 'manifest.lock').touch()
@@ -295,6 +292,52 @@ def test_binary_empty_and_directory_inputs_name_the_file(files, tmp_path, capsys
   assert not (tmp_path / 'gen').exists() and not (tmp_path / 'run').exists() and not out.exists()
 
 
+def test_binary_data_in_a_text_mesh_format_is_named(files, tmp_path, capsys):
+  """A binary file named ``.obj`` (or ``.off``) said "contains no triangle faces"; it is now named as not text."""
+  import dexjax.quality.__main__ as quality_cli
+  for name in ('garbage.obj', 'garbage.off'):
+    mesh = tmp_path / name
+    mesh.write_bytes(BINARY[5:])  # starts with 0x05, a control character
+    kind = name[-3:].upper()
+    needles = (name, f'not a text {kind} file (byte 0 is 0x05: binary data)', 'expected a')
+    one_error_line(capsys, quality_cli.main, [mesh, '--gripper', 'suction', '--out', tmp_path / 'q.json'], *needles)
+    one_error_line(capsys, objects_main, ['hulls', mesh], *needles)
+  latin1 = tmp_path / 'latin1.obj'  # text in an 8-bit encoding is still text
+  latin1.write_bytes('# caf\xe9\n'.encode('latin-1') + b'v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n')
+  from dexjax.geometry.mesh_io import MeshError, load_mesh
+  with pytest.raises(MeshError, match='zero volume'):  # read, then refused for its geometry: not for its bytes
+    load_mesh(latin1)
+  assert not (tmp_path / 'q.json').exists()
+
+
+def test_plan_names_the_depth_dtype_and_reads_only_the_pose_of_a_pose_file(tmp_path, capsys, monkeypatch):
+  """An int64 depth image went on to "no object pixels" without naming the file; a bad ``--camera-pose`` was blamed
+  for a missing ``fx`` (it was read as a whole camera)."""
+  import dexjax.policy.preprocess as preprocess
+  from dexjax.plan import main as plan_main
+  monkeypatch.setattr(preprocess, 'prepare_observation', never)
+  intrinsics = tmp_path / 'k.json'
+  intrinsics.write_text(json.dumps({'fx': 200.0, 'fy': 200.0, 'cx': 32.0, 'cy': 24.0, 'width': 64, 'height': 48}))
+  depth, wide = tmp_path / 'depth.npy', tmp_path / 'wide.npy'
+  np.save(depth, np.full((48, 64), 0.7, np.float32))
+  np.save(wide, np.full((48, 64), 800, np.int64))  # millimetres, but as np.array of Python ints makes them
+  plan = [depth, '--intrinsics', intrinsics, '--policy', 'suction_heuristic', '--out', tmp_path / 'p.json']
+  one_error_line(capsys, plan_main, [wide, *plan[1:]], 'wide.npy', 'dtype int64', 'expected a float array of metres',
+                 'uint16')
+  pose = tmp_path / 'pose.json'
+  for data, field in (({'rotation': [[1, 0, 0], [0, 1, 0]], 'position': [0, 0, 1]}, 'rotation'),
+                      ({'rotation': np.eye(3).tolist(), 'position': [0, 0, 'x']}, 'position[2]'),
+                      ({'position': [0, 0, 1]}, 'rotation: missing field')):
+    pose.write_text(json.dumps(data))
+    line = one_error_line(capsys, plan_main, [*plan, '--camera-pose', pose], 'pose.json', field)
+    assert 'fx' not in line, line
+  from dexjax.render.intrinsics_io import load_pose
+  pose.write_text(json.dumps({'rotation': np.eye(3).tolist(), 'position': [0.1, 0, 0.7]}))  # no intrinsics needed
+  rotation, position = load_pose(pose)
+  assert np.allclose(rotation, np.eye(3)) and np.allclose(position, [0.1, 0, 0.7])
+  assert not (tmp_path / 'p.json').exists()
+
+
 # --- configs whose fields contradict each other ---------------------------------------------------------------------
 
 
@@ -306,6 +349,8 @@ def test_binary_empty_and_directory_inputs_name_the_file(files, tmp_path, capsys
     ('perturbations: {parallel_jaw: {mass_variance: 0.0}}', 'perturbations.parallel_jaw.mass_variance', '> 0'),
     ('grippers: {suction: {max_strain: 1.5}}', 'grippers.suction.max_strain', '(0, 1)'),
     ('grippers: {suction: {cup_radius: 0.0}}', 'grippers.suction.cup_radius', '> 0'),
+    ('perturbations: {suction: {friction_mean: 5.0}}', 'perturbations.suction.friction_mean',
+     'in friction_range = [0, 1]'),
 ])
 def test_contradictory_gripper_configs_are_refused(tmp_path, capsys, text, field, expected):
   path = tmp_path / 'gripper.yaml'
@@ -320,7 +365,7 @@ def test_contradictory_gripper_configs_are_refused(tmp_path, capsys, text, field
 def test_cross_field_rules_of_heaps_perturbations_and_training(tmp_path, capsys):
   from dexjax.quality.robust import parallel_jaw_perturbations
   from dexjax.sim.heap import HeapDistribution
-  with pytest.raises(ConfigError, match=r'x.yaml: heap.max_count: expected an integer >= min_count = 5, got 3'):
+  with pytest.raises(ConfigError, match=r'x.yaml: heap.max_count: expected an integer in \[min_count = 5, 100\]'):
     validate_heap_distribution(HeapDistribution(min_count=5, max_count=3), source='x.yaml')
   with pytest.raises(ConfigError, match=r'heap.friction_range'):
     validate_heap_distribution(HeapDistribution(friction_range=(0.5, 0.5)), source='x.yaml')
@@ -459,7 +504,7 @@ def test_disk_full_names_the_file_and_keeps_what_was_written(tmp_path, capsys, m
   shard = shards.read_shard(shard_path(data, 0))
   manifest = tmp_path / 'manifest.json'
   manifest.write_text('{"old": "complete"}')
-  before = _digests(tmp_path)
+  before = digests(tmp_path)
   with monkeypatch.context() as m:
     m.setattr(os, 'fsync', _disk_full)
     for write, path in ((lambda p: atomic_write_text(p, 'new'), manifest),
@@ -474,7 +519,7 @@ def test_disk_full_names_the_file_and_keeps_what_was_written(tmp_path, capsys, m
     with pytest.raises(OSError) as e:
       write_shard(shard_path(data, 0), shard.images, shard.rows, meta)
     assert e.value.filename == os.fspath(shard_path(data, 0))
-  assert _digests(tmp_path) == before  # old files complete, no temporary files left
+  assert digests(tmp_path) == before  # old files complete, no temporary files left
   assert cli.report_bad_input(e.value) == 2
   err = capsys.readouterr().err
   assert 'shard-000000.npz: No space left on device' in err and 'free some space' in err

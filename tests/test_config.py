@@ -51,7 +51,7 @@ def test_override_keeps_unset_fields_and_types():
      "list of 2"),
     ("perturbations:\n  parallel_jaw:\n    mass_mean: .nan\n", "perturbations.parallel_jaw.mass_mean", "finite"),
     ("threshold: 1.5\n", "threshold", "[0, 1]"),
-    ("num_samples: 0\n", "num_samples", ">= 1"),
+    ("num_samples: 0\n", "num_samples", "an integer in [1, 10,000]"),
     ("solver: {}\n", "solver", "quality"),
 ])
 def test_bad_values_name_file_field_and_expectation(tmp_path, text, field, expected):

@@ -2,7 +2,8 @@
 overwrites or adds to a folder of the user's and still resumes its own runs; a damaged saved model is reported
 naming the file, before any trial, without orbax's absl ``ERROR`` line; a run lacking a gripper says which ones it
 has; a full disk stops ``generate`` with one line naming the shard; Ctrl-C during a training checkpoint lets the
-save finish and leaves no orbax temporary directory.
+save finish and leaves no orbax temporary directory; ``generate --out`` refuses a ``manifest.json`` that is not a
+run's without leaving anything behind.
 
 The CLIs run in-process through ``main(argv)``; no test here computes a trial, a shard or a training step.
 """
@@ -26,6 +27,7 @@ from dexjax.evaluate import main as evaluate_main
 from dexjax.generate.__main__ import main as generate_main
 
 sys.path.insert(0, os.path.dirname(__file__))
+from cli_checks import digests, never, one_error_line  # pylint: disable=g-import-not-at-top,wrong-import-position
 from test_train_loop import _write_dataset  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 BENCH = ['--policy', 'random', '--objects', 'builtin:cube', '--per-trial', '1', '--trials', '1', '--max-attempts', '1']
@@ -34,10 +36,6 @@ BENCH = ['--policy', 'random', '--objects', 'builtin:cube', '--per-trial', '1', 
 @pytest.fixture(autouse=True)
 def _cache(cache_dir, monkeypatch):
   monkeypatch.setenv('DEXJAX_CACHE', str(cache_dir))
-
-
-def _digests(root: Path) -> dict[str, bytes]:
-  return {str(p): p.read_bytes() for p in root.rglob('*') if p.is_file()}
 
 
 def _bad(capsys, main, argv: list, *needles, code: int = cli.BAD_INPUT_EXIT) -> str:
@@ -73,10 +71,10 @@ def test_benchmark_refuses_a_folder_of_the_users_before_computing(tmp_path, caps
     folder.mkdir()
     for file, text in files.items():
       (folder / file).write_text(text)
-    before = _digests(folder)
+    before = digests(folder)
     _bad(capsys, benchmark_main, [*BENCH, '--out', folder], "--out: '", name, 'did not write' if name == 'settings'
          else 'holds no benchmark run')
-    assert _digests(folder) == before  # byte-for-byte untouched, nothing added
+    assert digests(folder) == before  # byte-for-byte untouched, nothing added
 
 
 def _fake_trials(task, indices, **kwargs):
@@ -178,6 +176,38 @@ def test_a_run_lacking_the_gripper_says_which_it_has(suction_run, tmp_path, caps
   config = dataclasses.replace(TrainConfig(), init=str(suction_run), grippers=('parallel_jaw',))
   with pytest.raises(ValueError, match=r"no model of parallel_jaw there \(has \['suction'\]\).*--grippers suction$"):
     apply_init(config)
+
+
+# --- generate --out: a manifest.json that is not a run's ------------------------------------------------------------
+
+
+def test_generate_refuses_a_foreign_manifest_and_leaves_nothing_behind(tmp_path, capsys, monkeypatch):
+  """A user's ``manifest.json`` (``{"hello": 1}``) said "unreadable (KeyError: 'shards')" and left a
+  ``manifest.lock``: it is now refused before anything is written, naming the file as not a dexjax manifest;
+  ``--overwrite`` (the library's ``replace_foreign``) replaces it with the run's own."""
+  import dexjax.generate.run as run
+  monkeypatch.setattr(run, 'process_generator', never)
+  monkeypatch.setattr(run, 'warm_caches', never)
+  for name, text, shown in (('foreign', '{"hello": 1}', "no field 'config_fingerprint', 'seed', 'num_shards'"),
+                            ('damaged', '{"config_fingerprint": "abc", "seed": 0, "num', 'not valid JSON'),
+                            ('listed', '[1, 2, 3]', 'a JSON list, not an object'),
+                            ('records', '{"config_fingerprint": "a", "seed": 0, "num_shards": 1, "shards": [7]}',
+                             "field 'shards' is not a list of shard records")):
+    folder = tmp_path / name
+    folder.mkdir()
+    (folder / 'manifest.json').write_text(text)
+    before = digests(folder)
+    one_error_line(capsys, generate_main, ['--objects', 'builtin:cube', '--num-images', '1', '--out', folder,
+                                           '--no-preview'], f"--out: '{folder / 'manifest.json'}'",
+                   'not a dexjax run manifest', shown, '--overwrite')
+    assert digests(folder) == before and sorted(os.listdir(folder)) == ['manifest.json']  # no manifest.lock
+  from dexjax.data import ShardError, manifest_problem, open_manifest
+  foreign = tmp_path / 'foreign'
+  assert 'not a dexjax run manifest' in manifest_problem(foreign / 'manifest.json')
+  with pytest.raises(ShardError, match=r"manifest '.*foreign/manifest.json': not a dexjax run manifest"):
+    open_manifest(foreign, 'fingerprint', 0, 1)
+  manifest = open_manifest(foreign, 'fingerprint', 0, 1, replace_foreign=True)
+  assert manifest.config_fingerprint == 'fingerprint' and manifest_problem(foreign / 'manifest.json') is None
 
 
 # --- disk full ------------------------------------------------------------------------------------------------------

@@ -63,17 +63,73 @@ class Manifest:
     return json.dumps(data, sort_keys=True, indent=1)
 
 
-def load_manifest(out_dir: str | os.PathLike) -> Manifest | None:
-  """Reads ``out_dir/manifest.json``; None if it does not exist; `ShardError` if it is unreadable."""
-  path = Path(out_dir) / MANIFEST_NAME
+#: Fields of a run manifest (`Manifest.to_json`; ``format_version`` too since it was added).
+MANIFEST_FIELDS = ("config_fingerprint", "seed", "num_shards", "shards")
+
+_NOT_A_MANIFEST = ("not a dexjax run manifest ({}); expected the manifest.json python -m dexjax.generate writes "
+                   "(a JSON object with " + ", ".join(MANIFEST_FIELDS) + ")")
+
+
+def _manifest_problem(data: Any) -> str | None:
+  """What keeps the decoded JSON ``data`` from being a run manifest, or None."""
+  if not isinstance(data, dict):
+    return f"a JSON {type(data).__name__}, not an object"
+  missing = [f for f in MANIFEST_FIELDS if f not in data]
+  if missing:
+    return f"no field {', '.join(repr(f) for f in missing)}"
+  shards = data["shards"]
+  record_fields = {f.name for f in dataclasses.fields(ShardRecord)}
+  if not isinstance(shards, list) or not all(isinstance(r, dict) and "index" in r and set(r) <= record_fields
+                                             for r in shards):
+    return "field 'shards' is not a list of shard records"
+  return None
+
+
+class _NotAManifest(ShardError):
+  """The file is not a readable run manifest; ``problem`` says why (without the file name)."""
+
+  def __init__(self, path: Path, problem: str):
+    super().__init__(f"manifest '{path}': {problem}")
+    self.problem = problem
+
+
+def _read_manifest(path: Path) -> Manifest:
+  """The `Manifest` in the file ``path``; `ShardError` naming it if it is unreadable or not a run manifest."""
+  from dexjax.config import ConfigError, parse_json  # pylint: disable=g-import-not-at-top (refuses deep nesting)
   try:
-    data = json.loads(path.read_text())
+    data = parse_json(path.read_text(encoding="utf-8"), os.fspath(path), expected=None)
+  except UnicodeDecodeError as err:
+    raise _NotAManifest(path, _NOT_A_MANIFEST.format(f"byte {err.start} is not UTF-8 text")) from None
+  except ConfigError as err:
+    raise _NotAManifest(path, _NOT_A_MANIFEST.format(f"{err.field + ': ' if err.field else ''}{err.problem}")) from None
+  problem = _manifest_problem(data)
+  if problem is not None:
+    raise _NotAManifest(path, _NOT_A_MANIFEST.format(problem))
+  try:
     records = {r["index"]: ShardRecord(**r) for r in data["shards"]}
     return Manifest(data["config_fingerprint"], data["seed"], data["num_shards"], records)
+  except (ValueError, KeyError, TypeError) as err:
+    raise _NotAManifest(path, f"unreadable ({type(err).__name__}: {err})") from None
+
+
+def load_manifest(out_dir: str | os.PathLike) -> Manifest | None:
+  """Reads ``out_dir/manifest.json``; None if it does not exist; `ShardError` naming the file if it is unreadable
+  or not a run manifest (e.g. a user's own ``manifest.json``)."""
+  path = Path(out_dir) / MANIFEST_NAME
+  try:
+    return _read_manifest(path)
   except FileNotFoundError:
     return None
-  except (ValueError, KeyError, TypeError, RecursionError) as err:
-    raise ShardError(f"manifest '{path}': unreadable ({type(err).__name__}: {err})") from err
+
+
+def manifest_problem(path: str | os.PathLike) -> str | None:
+  """None if the file ``path`` is a readable run manifest, else why not, with what was expected (without the
+  file name): checked before a run writes anything next to it, e.g. its ``manifest.lock``."""
+  try:
+    _read_manifest(Path(path))
+  except _NotAManifest as err:
+    return err.problem
+  return None
 
 
 def _save_manifest(out_dir: Path, manifest: Manifest) -> None:
@@ -88,16 +144,24 @@ def _check_run(where: str, found: tuple, expected: tuple) -> None:
         "run; use a new --out directory")
 
 
-def open_manifest(out_dir: str | os.PathLike, fingerprint: str, seed: int, num_shards: int) -> Manifest:
+def open_manifest(out_dir: str | os.PathLike, fingerprint: str, seed: int, num_shards: int, *,
+                  replace_foreign: bool = False) -> Manifest:
   """Loads the manifest of ``out_dir``, creating it if absent; raises `ConfigMismatchError` for another run.
 
   A run may grow: a larger ``num_shards`` than recorded extends it (shard i does not depend on the count); a
-  smaller one raises `ConfigMismatchError` (the directory already promises more shards).
+  smaller one raises `ConfigMismatchError` (the directory already promises more shards). A ``manifest.json``
+  that is not a run manifest (`manifest_problem`) raises `ShardError`, or with ``replace_foreign`` (a command's
+  ``--overwrite``) is replaced by a new one.
   """
   out_dir = Path(out_dir)
   out_dir.mkdir(parents=True, exist_ok=True)
   with _manifest_lock(out_dir):
-    manifest = load_manifest(out_dir)
+    try:
+      manifest = load_manifest(out_dir)
+    except _NotAManifest:
+      if not replace_foreign:
+        raise
+      manifest = None
     if manifest is None:
       manifest = Manifest(fingerprint, seed, num_shards)
       _save_manifest(out_dir, manifest)

@@ -18,8 +18,8 @@ import dataclasses
 import os
 from typing import Any, Mapping
 
-from dexjax.config import (ConfigError, as_dict, plain_json, check_sections, load_yaml, override, string_list,
-                           validate_generate_config)
+from dexjax.config import (MAX_GRID_SIZE, ConfigError, as_dict, check_fields, check_sections, count_rule, load_yaml,
+                           override, plain_json, string_list, validate_generate_config)
 from dexjax.data.shards import FORMAT_VERSION, config_fingerprint
 from dexjax.generate.labels import LABEL_VERSION
 from dexjax.generate.policy import PolicyParams
@@ -44,8 +44,9 @@ class ObjectsConfig:
     sources: object sources (`dexjax.objects.load_object_set`: ``builtin:NAME``, ``builtin:level2``,
       ``procedural:L2/0:100``, mesh files, folders).
     scale: factor applied to meshes read from files (e.g. 0.001 for millimetre meshes).
-    grid_size: signed-distance grid resolution of each object's model (reward and supervisor); 64 keeps 99.6-100 %
-      of 128's rewards at 1.5-2.4x less labelling time than 100 (``docs/generate.md``, grid resolution).
+    grid_size: signed-distance grid resolution of each object's model (reward and supervisor), 8 to 512
+      (`dexjax.config_rules.MAX_GRID_SIZE`); 64 keeps 99.6-100 % of 128's rewards at 1.5-2.4x less labelling time
+      than 100 (``docs/generate.md``, grid resolution).
   """
 
   sources: tuple[str, ...] = ('builtin:level2',)
@@ -122,10 +123,10 @@ def _objects(values: dict[str, Any] | None, source: str) -> ObjectsConfig:
   if sources is not None:
     sources = string_list(sources, source=source, field='objects.sources', what='object sources')
     objects = dataclasses.replace(objects, sources=sources)
-  if objects.grid_size < 8 or objects.scale <= 0:
-    raise ConfigError(source, 'objects', f'expected grid_size >= 8 and scale > 0, got {objects.grid_size}, '
-                                         f'{objects.scale}')
-  return objects
+  return check_fields([count_rule('grid_size', objects.grid_size, 8, MAX_GRID_SIZE,
+                                  'voxels per axis of each signed-distance grid; MAX_GRID_SIZE'),
+                       ('scale', objects.scale > 0, 'a number > 0 (metres per mesh-file unit)')],
+                      objects, source=source, section='objects')
 
 
 def _camera(config: GenerateConfig, values: dict[str, Any] | None, source: str) -> GenerateConfig:

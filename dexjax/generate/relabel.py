@@ -220,7 +220,7 @@ def relabel_dataset(data_dir: str | os.PathLike[str], out_dir: str | os.PathLike
   if manifest is None:
     raise FileNotFoundError(f'{source}: no manifest.json (not a run of python -m dexjax.generate)')
   total, key = manifest.num_shards, fingerprint(new)
-  open_manifest(out, key, new.seed, total)
+  open_manifest(out, key, new.seed, total, replace_foreign=overwrite)
   write_run_config(out, new)
   todo = pending_shards(out, total, key, seed=new.seed)
   ready = [i for i in todo if i in manifest.shards]

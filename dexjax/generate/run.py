@@ -26,7 +26,7 @@ from typing import Any
 
 from dexjax.cli import OutputError, check_output_dir, is_dexjax_png
 from dexjax.config import ConfigError, as_dict, validate_generate_config
-from dexjax.data.manifest import open_manifest, pending_shards
+from dexjax.data.manifest import manifest_problem, open_manifest, pending_shards
 from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
 from dexjax.generate.config import GenerateConfig, content_fields, fingerprint, load_generate_config
 from dexjax.geometry.cache import atomic_write_text
@@ -97,9 +97,10 @@ def check_run_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False) -
 
   ``out_dir`` must be a directory or not exist yet, under a writable directory (missing levels are created).
   A new run (no ``manifest.json``) needs it absent or empty; a directory of a run may also hold other files
-  (they are never written). A ``config.json`` or ``preview.png`` must be the run's own: the config record this
-  module writes, a PNG marked as dexjax's (`dexjax.cli.is_dexjax_png`). With ``overwrite`` the last two rules
-  are lifted. A manifest or shards of another run are refused later (`dexjax.data.ConfigMismatchError`).
+  (they are never written). A ``manifest.json``, ``config.json`` or ``preview.png`` must be the run's own: a run
+  manifest (`dexjax.data.manifest_problem`), the config record this module writes, a PNG marked as dexjax's
+  (`dexjax.cli.is_dexjax_png`). With ``overwrite`` the last two rules are lifted and a foreign ``manifest.json``
+  is replaced. A manifest or shards of another run are refused later (`dexjax.data.ConfigMismatchError`).
 
   Raises:
     OutputError: naming ``--out``, the directory and what was expected.
@@ -113,7 +114,12 @@ def check_run_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False) -
     if name in mine and not mine[name](out / name):
       raise OutputError('--out', out, f"holds a '{name}' this command did not write; expected this run's own "
                                       f'{name} (move the file away, choose another --out, or pass --overwrite)')
-  if MANIFEST_NAME not in entries:
+  if MANIFEST_NAME in entries:
+    problem = manifest_problem(out / MANIFEST_NAME)
+    if problem is not None:
+      raise OutputError('--out', out / MANIFEST_NAME, f'{problem}: move the file away, choose another --out, or pass '
+                                                     '--overwrite to replace it')
+  else:
     others = [n for n in entries if not _STARTING_RUN_FILE.fullmatch(n)]
     if others:
       shown = ', '.join(repr(n) for n in others[:3]) + (', ...' if len(others) > 3 else '')
@@ -251,10 +257,12 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
   prepare = (lambda: warm_caches(config, cache_dir, progress, backend=backend, workers=workers,
                                  ray_address=ray_address)) if parallel else (
       lambda: process_generator(config, cache_dir))
-  new_run = not (out / MANIFEST_NAME).exists()
+  manifest = out / MANIFEST_NAME
+  foreign = manifest.exists() and manifest_problem(manifest) is not None  # only with --overwrite (check_run_dir)
+  new_run = foreign or not manifest.exists()
   if new_run:
     prepare()
-  open_manifest(out, fingerprint(config), config.seed, total)
+  open_manifest(out, fingerprint(config), config.seed, total, replace_foreign=overwrite)
   write_run_config(out, config)
   todo = pending_shards(out, total, fingerprint(config), assignment, seed=config.seed, verify=verify)
   mine = len(range(assignment[0], total, assignment[1]))

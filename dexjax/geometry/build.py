@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import trimesh
 
+from dexjax.config_rules import MAX_GRID_SIZE
 from dexjax.geometry.mesh_io import validate_and_repair
 from dexjax.geometry.object_model import ObjectModel
 
@@ -35,7 +36,8 @@ def build_object_model(
 
   Args:
     mesh: closed triangle mesh in the object frame, metres.
-    grid_size: voxels D along each axis of the cubic grid; must exceed ``2 * padding + 1``.
+    grid_size: voxels D along each axis of the cubic grid; must exceed ``2 * padding + 1`` and be at most
+      `dexjax.config_rules.MAX_GRID_SIZE` (512).
     padding: voxels of free space between the bounding box and the grid border along the longest axis
       (Dex-Net: 5); at least 1.
     num_surface_samples: number S of area-uniform surface samples; at least 1.
@@ -52,6 +54,9 @@ def build_object_model(
     MeshError: the mesh cannot be repaired into a closed solid.
   """
   _check_int('grid_size', grid_size, 2 * _as_int('padding', padding) + 2)
+  if grid_size > MAX_GRID_SIZE:
+    raise ValueError(f'build_object_model: grid_size: expected at most {MAX_GRID_SIZE} voxels per axis (MAX_GRID_SIZE; '
+                     f'a {MAX_GRID_SIZE}^3 grid is 0.5 GB), got {grid_size}')
   _check_int('padding', padding, 1)
   _check_int('num_surface_samples', num_surface_samples, 1)
   _check_int('seed', seed, 0)

@@ -33,6 +33,7 @@ trimesh's optional graph dependencies are installed.
 from __future__ import annotations
 
 import os
+import re
 import warnings
 
 import igl
@@ -105,8 +106,8 @@ def load_mesh(path: str | os.PathLike[str], *, scale: float = 1.0) -> trimesh.Tr
     A `trimesh.Trimesh` in metres that is watertight, consistently wound and has positive volume.
 
   Raises:
-    MeshError: the extension is unsupported, the file is missing, empty or unreadable, or the mesh is
-      unusable (see `validate_and_repair`).
+    MeshError: the extension is unsupported, the file is missing, empty, unreadable or (OBJ, OFF) not text, or
+      the mesh is unusable (see `validate_and_repair`).
     ValueError: ``scale`` is not a finite positive number.
 
   Warns:
@@ -127,6 +128,8 @@ def load_mesh(path: str | os.PathLike[str], *, scale: float = 1.0) -> trimesh.Tr
     raise MeshError(file, 'file not found')
   if os.path.getsize(file) == 0:
     raise MeshError(file, 'empty file (0 bytes); expected a triangle mesh')
+  if ext in TEXT_FORMATS:
+    _check_text(file, ext)
   try:
     scene = trimesh.load_scene(file, file_type=ext[1:], process=False)
   except Exception as e:  # trimesh raises many exception types for malformed files.
@@ -146,6 +149,23 @@ def load_mesh(path: str | os.PathLike[str], *, scale: float = 1.0) -> trimesh.Tr
   mesh = validate_and_repair(mesh, file)
   check_scale(mesh, file, scale)
   return mesh
+
+
+TEXT_FORMATS: dict[str, str] = {'.obj': "a Wavefront OBJ, which is text ('v' and 'f' lines)",
+                                 '.off': "an OFF file, which is text ('OFF', then vertex and face lines)"}
+"""Mesh formats that are always text, and what such a file holds: `load_mesh` refuses binary data in them."""
+
+# Control characters (but tab, line and page breaks and the old end-of-file mark Ctrl-Z) never occur in text.
+_BINARY_BYTE = re.compile(rb'[\x00-\x08\x0e-\x19\x1b-\x1f\x7f]')
+
+
+def _check_text(file: str, ext: str) -> None:
+  """`MeshError` if the first 64 kB of a text-format file hold binary data (which its parser reports as no faces)."""
+  with open(file, 'rb') as f:
+    found = _BINARY_BYTE.search(f.read(1 << 16))
+  if found:
+    raise MeshError(file, f'not a text {ext[1:].upper()} file (byte {found.start()} is 0x{found.group()[0]:02x}: '
+                          f'binary data); expected {TEXT_FORMATS[ext]}')
 
 
 def check_scale(mesh: trimesh.Trimesh, name: str, scale: float = 1.0) -> float:

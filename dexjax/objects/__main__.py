@@ -11,7 +11,8 @@ file in millimetres without ``--scale 0.001``) or rejected with the reason; exit
 loaded, 1 when none did, 2 for bad input (docs/errors.md).
 ``--json`` prints ``{"loaded": [names], "rejected": [{"file": ..., "reason": ...}], "warnings": [{"name": ...,
 "warning": ...}]}`` to stdout.
-``hulls`` prints the convex collision pieces of one mesh (a file or ``builtin:NAME``).
+``hulls`` prints the convex collision pieces of one mesh (a file or ``builtin:NAME``). ``--scale`` (> 0),
+``--max-hulls`` (1 to 1024) and ``--max-vertices`` (4 to 1024) are checked, naming the option, before any mesh is read.
 ``masses`` prints one line per object of the set the sources name (``procedural:L1/0:25@77``, ``builtin:all``,
 files, folders): name, family, material, sorted extents (cm), volume (cm^3), density (kg/m^3) and the mass (kg)
 the heap physics gives it (`dexjax.sim.heap_object`), then the set's mass summary beside the reward's Gamma prior
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import warnings
@@ -34,6 +36,7 @@ from typing import TYPE_CHECKING
 import trimesh
 
 from dexjax.cli import add_overwrite_flag, check_output_file, command, is_dexjax_png, report_failure, stamp_png
+from dexjax.config_rules import MAX_STATIC_COUNT
 from dexjax.objects.builtin import resolve_mesh
 from dexjax.objects.collision import cached_collision_hulls
 from dexjax.objects.folder import FolderReport, emit_warnings, load_mesh_folder
@@ -180,12 +183,29 @@ def _preview(args: argparse.Namespace) -> int:
   return 0
 
 
+def _check_args(args: argparse.Namespace) -> None:
+  """Raises ValueError naming the option and the expected value, before any mesh is read."""
+  checks = []
+  if getattr(args, 'scale', None) is not None:
+    checks.append(('--scale', math.isfinite(args.scale) and args.scale > 0,
+                   'a finite number > 0 (metres per file unit, e.g. 0.001 for millimetres)', args.scale))
+  if args.command == 'hulls':
+    checks += [('--max-hulls', 1 <= args.max_hulls <= MAX_STATIC_COUNT, f'an integer in [1, {MAX_STATIC_COUNT}]',
+                args.max_hulls),
+               ('--max-vertices', 4 <= args.max_vertices <= MAX_STATIC_COUNT,
+                f'an integer in [4, {MAX_STATIC_COUNT}]', args.max_vertices)]
+  for option, ok, expected, value in checks:
+    if not ok:
+      raise ValueError(f'{option}: expected {expected}, got {value}')
+
+
 @command
 def main(argv: list[str] | None = None) -> int:
   parser = _parser()
   args = parser.parse_args(argv)
   if args.preview and args.command:
     raise ValueError(f'--preview cannot be combined with the {args.command!r} command')
+  _check_args(args)
   if args.command == 'check':
     return _check(args)
   if args.command == 'hulls':

@@ -2,8 +2,8 @@
 
 Depth files (`load_depth`; `save_depth` writes the 16-bit PNG), recognised by their content, not their extension:
 
-* ``.npy``: an (H, W) or (H, W, 1) array; floats are metres, integers millimetres (a raw sensor dump) unless
-  ``depth_scale`` says otherwise;
+* ``.npy``: an (H, W) or (H, W, 1) array: floats are metres, uint16 millimetres (a raw sensor dump, 16UC1) unless
+  ``depth_scale`` says otherwise; other integer types (e.g. int64) are refused, naming the dtype;
 * ``.npz``: the same, holding exactly one array;
 * PNG: single-channel 16-bit (the usual uint16 depth PNG of RealSense, Kinect, ROS ``16UC1``), ``depth_scale``
   metres per unit, 0.001 (millimetres) by default. An 8-bit or colour PNG cannot hold a depth image (it is a
@@ -32,6 +32,8 @@ _NPY_MAGIC = b'\x93NUMPY'
 _ZIP_MAGIC = b'PK\x03\x04'
 _COLOUR_TYPES = {0: 'greyscale', 2: 'RGB', 3: 'palette', 4: 'greyscale with alpha', 6: 'RGBA'}
 _EXPECTED_DEPTH = 'an (H, W) or (H, W, 1) depth image (.npy, .npz, or a single-channel 16-bit PNG)'
+_DEPTH_DTYPES = ('a float array of metres (float32 or float64) or a uint16 array of sensor units (millimetres unless '
+                 '--depth-scale says otherwise, as a 16UC1 depth image)')
 
 
 def _kind(path: str | os.PathLike, what: str) -> str:
@@ -102,6 +104,14 @@ def _real(name: str, array: np.ndarray) -> np.ndarray:
   return array
 
 
+def _check_dtype(name: str, array: np.ndarray) -> None:
+  """ValueError naming ``name`` for an integer depth array other than uint16 (a sensor's raw units): no sensor
+  writes int64 (``np.array`` of Python integers does), so its unit is anyone's guess. Non-real dtypes: `_real`."""
+  if np.issubdtype(array.dtype, np.integer) and array.dtype != np.uint16:
+    raise ValueError(f'{name}: dtype {array.dtype}; expected {_DEPTH_DTYPES}: convert it first (e.g. '
+                     'depth.astype(np.uint16) for millimetres, or depth / 1000.0 for metres)')
+
+
 def check_depth_image(depth: np.ndarray, name: str = 'depth') -> np.ndarray:
   """A depth image in metres as (H, W) float32, with invalid pixels (NaN, inf, <= 0) left as they are.
 
@@ -170,6 +180,7 @@ def load_depth(path: str | os.PathLike, depth_scale: float | None = None) -> np.
   else:
     raw = _read_array(path, kind)
     default = 0.001 if np.issubdtype(raw.dtype, np.integer) else 1.0
+    _check_dtype(name, raw)
   scale = _depth_scale(name, depth_scale, default)
   return check_depth_image(_real(name, raw).astype(np.float64) * scale, name)
 

@@ -22,6 +22,7 @@ import time
 import jax
 
 from dexjax.cli import FAILURE_EXIT, add_overwrite_flag, atomic_write, check_output_file, command, owned_json
+from dexjax import config_rules
 from dexjax.config import plain_json
 from dexjax.objects import load_object_model
 from dexjax.objects.builtin import check_object_spec
@@ -55,14 +56,14 @@ def _parser() -> argparse.ArgumentParser:
   return p
 
 
-MAX_GRID_SIZE = 512
+MAX_GRID_SIZE = config_rules.MAX_GRID_SIZE
 """Largest ``--grid-size``: a 512^3 float32 signed distance grid is 0.5 GB (Dex-Net's SDFGen used 100)."""
 
 MAX_NUM_GRASPS = 100_000
 """Largest ``--num-grasps`` of one run (all are evaluated together; split larger sets over runs)."""
 
-MAX_SAMPLES = 10_000
-"""Largest ``--samples`` (Monte-Carlo draws M per grasp; the seed uses 10 and 25)."""
+MAX_SAMPLES = config_rules.MAX_SAMPLES
+"""Largest ``--samples`` (Monte-Carlo draws M per grasp; the seed uses 10 and 25), as a config's ``num_samples``."""
 
 MAX_GRASP_SAMPLES = 10_000_000
 """Largest number of grasps x samples of one run (the robust quality's working set grows with it)."""

@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from dexjax.config import check_fields, number_or_nan
+from dexjax.config_rules import MAX_GRIPPER_SIZE, ConfigError, check_fields, count_rule, number_rule
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.geometry.sdf import sdf_gradient, sdf_value
 from dexjax.geometry.transforms import normalize
@@ -53,7 +53,8 @@ from dexjax.grasps import ParallelJawGrasp, parallel_jaw_pose
 from dexjax.grippers import ParallelJawGripper
 
 __all__ = [
-    'GripperGeometry', 'REFINE_DEPTHS', 'REFINED_SAMPLES', 'NEAREST_SAMPLES', 'jaw_solids', 'jaw_collision_points',
+    'GripperGeometry', 'MAX_COLLISION_SAMPLES', 'MAX_DISC_RINGS', 'REFINE_DEPTHS', 'REFINED_SAMPLES',
+    'NEAREST_SAMPLES', 'check_collision_samples', 'jaw_solids', 'jaw_collision_points',
     'jaw_clearance', 'jaw_collision_samples', 'jaw_contact_points', 'jaw_corner_points', 'nearest_jaw_samples',
     'jaw_collides', 'suction_collision_points', 'suction_contact_points', 'suction_rim_points', 'to_world',
 ]
@@ -104,17 +105,62 @@ class GripperGeometry:
   def validate(self, source: str = 'GripperGeometry', section: str = '') -> GripperGeometry:
     """Returns ``self`` if the fields are consistent; raises `dexjax.config.ConfigError` (a ValueError) naming
     ``source``, the field and the expected value otherwise."""
+
+    def size(field: str, low_open: bool = False):  # a length of at most MAX_GRIPPER_SIZE
+      return number_rule(field, getattr(self, field), 0, MAX_GRIPPER_SIZE, 'metres', low_open=low_open)
+
     return check_fields([
-        ('shaft_radius', number_or_nan(self.shaft_radius) >= 0, 'a number >= 0 (metres)'),
-        ('shaft_length', number_or_nan(self.shaft_length) >= 0, 'a number >= 0 (metres)'),
-        ('lip_allowance', number_or_nan(self.lip_allowance) >= 0, 'a number >= 0 (metres)'),
-        ('standoff', number_or_nan(self.standoff) >= 0, 'a number >= 0 (metres)'),
-        ('max_opening', number_or_nan(self.max_opening) > 0, 'a number > 0 (metres)'),
-        ('nominal_cup_height', number_or_nan(self.nominal_cup_height) > 0, 'a number > 0 (metres)'),
-        ('spacing', number_or_nan(self.spacing) >= 5e-4,
-         'a number >= 0.0005 (metres; finer cells make millions of samples)'),
-        ('disc_rings', isinstance(self.disc_rings, int) and self.disc_rings >= 1, 'an integer >= 1'),
+        size('shaft_radius'), size('shaft_length'), size('lip_allowance'), size('standoff'),
+        size('max_opening', low_open=True), size('nominal_cup_height', low_open=True),
+        number_rule('spacing', self.spacing, 5e-4, MAX_GRIPPER_SIZE, 'metres; finer cells make millions of samples'),
+        count_rule('disc_rings', self.disc_rings, 1, MAX_DISC_RINGS, 'rings of 6 k samples each'),
     ], self, source=source, section=section)
+
+
+MAX_DISC_RINGS = 64
+"""Largest `GripperGeometry.disc_rings` (64 rings: 12,481 samples per disc)."""
+
+MAX_COLLISION_SAMPLES = 2_000_000
+"""Largest number of collision samples of one gripper's solids (`check_collision_samples`): the default gripper
+takes 1,136 (jaws) and 824 (suction) at the default 5 mm spacing, 1.14 M and 0.15 M at the finest, 0.5 mm."""
+
+
+def _jaw_counts(gripper: ParallelJawGripper, geometry: GripperGeometry) -> list[tuple[int, int, int]]:
+  """Static cell counts of each `jaw_solids` solid: both fingers (none for point jaws), then the palm."""
+  g, s = gripper, geometry
+  finger = (_count(g.finger_length + s.standoff, s.spacing), _count(g.finger_thickness, s.spacing),
+            _count(g.finger_width, s.spacing))
+  palm = (_count(g.palm_depth + s.standoff, s.spacing), _count(g.palm_width, s.spacing),
+          _count(g.palm_height, s.spacing))
+  return ([finger, finger] if g.finger_thickness > 0 else []) + [palm]
+
+
+def _suction_count(geometry: GripperGeometry) -> int:
+  """Static number of `suction_collision_points`: the swept cup and the tool shaft."""
+  g = geometry
+  cup_x = _count(g.nominal_cup_height + g.standoff - g.lip_allowance, g.spacing)
+  shaft_rings = _count(g.shaft_radius, g.spacing)
+  return cup_x * _disc_size(g.disc_rings) + _count(g.shaft_length, g.spacing) * _disc_size(shaft_rings)
+
+
+def _disc_size(rings: int) -> int:
+  """Number of `_unit_disc` points: the centre plus 6 k points on ring k."""
+  return 1 + 3 * rings * (rings + 1)
+
+
+def check_collision_samples(gripper: ParallelJawGripper, geometry: GripperGeometry, source: str = 'GripperGeometry',
+                            section: str = 'quality.geometry') -> None:
+  """Raises `ConfigError` naming ``source``, the spacing field and the sample count when the parallel-jaw solids
+  (`jaw_collision_points`) or the suction solids (`suction_collision_points`) would take more than
+  `MAX_COLLISION_SAMPLES` samples: every grasp tests all of them, so a large gripper at a fine spacing (both
+  within their own limits) would exhaust the memory."""
+  jaws = sum(math.prod(c) for c in _jaw_counts(gripper, geometry))
+  for what, count in (('the parallel-jaw fingers and palm', jaws), ('the suction cup and shaft',
+                                                                     _suction_count(geometry))):
+    if count > MAX_COLLISION_SAMPLES:
+      raise ConfigError(source, f'{section}.spacing', f'{what} would take {count:,} collision samples at a spacing of '
+                        f'{geometry.spacing:g} m; expected at most {MAX_COLLISION_SAMPLES:,} (MAX_COLLISION_SAMPLES: '
+                        'a coarser spacing or a smaller gripper)')
 
 
 def _count(length: float, spacing: float) -> int:
@@ -161,9 +207,9 @@ def jaw_solids(gripper: ParallelJawGripper, geometry: GripperGeometry,
   x_lo, x_hi = g.tip_depth - g.finger_length - s.standoff, g.tip_depth
   half = 0.5 * jnp.asarray(width, jnp.float32)
   solids = []
-  if g.finger_thickness > 0:
-    counts = (_count(x_hi - x_lo, s.spacing), _count(g.finger_thickness, s.spacing),
-              _count(g.finger_width, s.spacing))
+  *fingers, palm_counts = _jaw_counts(g, s)
+  if fingers:
+    counts = fingers[0]
     for sign in (1.0, -1.0):
       y_lo = sign * half + min(sign, 0.0) * g.finger_thickness
       y_hi = sign * half + max(sign, 0.0) * g.finger_thickness
@@ -173,8 +219,7 @@ def jaw_solids(gripper: ParallelJawGripper, geometry: GripperGeometry,
   palm_lo = palm_hi - g.palm_depth - s.standoff
   solids.append((jnp.asarray([palm_lo, -0.5 * g.palm_width, -0.5 * g.palm_height], jnp.float32),
                  jnp.asarray([palm_hi, 0.5 * g.palm_width, 0.5 * g.palm_height], jnp.float32),
-                 (_count(palm_hi - palm_lo, s.spacing), _count(g.palm_width, s.spacing),
-                  _count(g.palm_height, s.spacing))))
+                 palm_counts))
   return solids
 
 

@@ -13,8 +13,9 @@ from typing import Any
 import jax
 import numpy as np
 
-from dexjax.config import (ConfigError, as_dict, check_fields, check_sections, load_yaml, override,
-                           validate_perturbations)
+from dexjax.config import as_dict, check_sections, load_yaml, override
+from dexjax.config_rules import (MAX_FORCE, MAX_GRIPPER_SIZE, MAX_SAMPLES, ConfigError, check_fields, count_rule,
+                                 number_rule, validate_perturbations)
 from dexjax.geometry.object_model import ObjectModel
 from dexjax.grasps import parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
@@ -22,6 +23,7 @@ from dexjax.quality.batched import evaluate_grasps
 from dexjax.quality.grasp_json import (GraspFileError, grasp_record, parse_grasps, stack_parallel_jaw,
                                        stack_suction)
 from dexjax.quality.grasp_quality import FAILURE_REASONS, QualityConfig
+from dexjax.quality.gripper_geometry import check_collision_samples
 from dexjax.quality.robust import Perturbations, parallel_jaw_perturbations, suction_perturbations
 from dexjax.sampling.object_samplers import AntipodalSampler, sample_antipodal_grasps, sample_suction_grasps
 
@@ -38,6 +40,12 @@ longer resolves 0.1 mm."""
 MAX_GRASP_DISTANCE: float = 10.0
 """Farthest a grasp ``center`` may lie from the object's bounding box, metres: farther, the grasp cannot touch the
 object and the file is most likely in other units or another frame."""
+
+MAX_TORQUE_SCALE: float = 1e6
+"""Largest ``quality.torque_scale``, 1/m (torques counted as forces at a lever of at least 1 micrometre)."""
+
+MAX_GRAVITY: float = 1000.0
+"""Largest ``quality.gravity_acceleration``, m/s^2 (about 100 g)."""
 
 _NUMERIC_FIELDS = ("center", "approach", "axis", "width")
 
@@ -78,8 +86,8 @@ def settings_from_config(data: dict[str, Any], source: str) -> ReportSettings:
   s = ReportSettings()
   top = override(s, {k: data[k] for k in ("num_samples", "threshold") if k in data}, source=source, section="",
                  minimum=0)
-  if top.num_samples < 1:
-    raise ConfigError(source, "num_samples", f"expected an integer >= 1, got {top.num_samples}")
+  check_fields([count_rule("num_samples", top.num_samples, 1, MAX_SAMPLES, "Monte-Carlo draws")], top,
+               source=source)
   if top.threshold > 1.0:
     raise ConfigError(source, "threshold", f"expected a number in [0, 1], got {top.threshold}")
   grippers = data.get("grippers") or {}
@@ -112,13 +120,15 @@ def validate_settings(settings: ReportSettings, source: str = "<settings>") -> R
   settings.suction.validate(source, "grippers.suction")
   for name in _GRIPPERS:
     validate_perturbations(settings.perturbations(name), source=source, section=f"perturbations.{name}")
-  check_fields([("tolerance", settings.config.tolerance > 0, "a number > 0 (newtons)"),
-                ("torque_scale", settings.config.torque_scale > 0, "a number > 0 (1/m)"),
-                ("gravity_acceleration", settings.config.gravity_acceleration >= 0, "a number >= 0 (m/s^2)"),
-                ("collision_tolerance", settings.config.collision_tolerance >= 0,
-                 "a number >= 0 (metres a gripper solid may reach into an object)")],
-               settings.config, source=source, section="quality")
-  settings.config.geometry.validate(source, "quality.geometry")
+  q = settings.config
+  check_fields([number_rule("tolerance", q.tolerance, 0, MAX_FORCE, "newtons", low_open=True),
+                number_rule("torque_scale", q.torque_scale, 0, MAX_TORQUE_SCALE, "1/m", low_open=True),
+                number_rule("gravity_acceleration", q.gravity_acceleration, 0, MAX_GRAVITY, "m/s^2"),
+                number_rule("collision_tolerance", q.collision_tolerance, 0, MAX_GRIPPER_SIZE,
+                            "metres a gripper solid may reach into an object")],
+               q, source=source, section="quality")
+  q.geometry.validate(source, "quality.geometry")
+  check_collision_samples(settings.parallel_jaw, q.geometry, source, "quality.geometry")
   return settings
 
 

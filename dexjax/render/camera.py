@@ -23,6 +23,10 @@ from dexjax.geometry.transforms import normalize
 #: fail inside MuJoCo: "Offscreen framebuffer is not complete") and the memory of one image per ray-casting call.
 MAX_IMAGE_SIDE = 4096
 
+#: Largest focal length fx, fy of an intrinsics file, pixels: a field of view of 0.23 degrees across 4096 pixels
+#: (a 1000 mm lens on 1 um pixels); larger values are a unit mistake and overflow float32 beyond 3.4e38.
+MAX_FOCAL_LENGTH = 1e6
+
 
 @struct.dataclass
 class Intrinsics:

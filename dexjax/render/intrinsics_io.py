@@ -12,8 +12,8 @@ Formats (see docs/cameras.md):
 
 Files ending in ``.yaml`` or ``.yml`` are parsed as YAML, anything else as JSON (by
 `dexjax.config.parse_yaml_documents` and `parse_json`: deep nesting and duplicate YAML keys are refused). We always
-write JSON. Width and height are at most `MAX_IMAGE_SIDE` pixels and the principal point lies in the image
-(0 <= cx <= width, 0 <= cy <= height).
+write JSON. Width and height are at most `MAX_IMAGE_SIDE` pixels, focal lengths at most `MAX_FOCAL_LENGTH` pixels
+and the principal point lies in the image (0 <= cx <= width, 0 <= cy <= height).
 Errors name the file, the field and the expected value.
 """
 
@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from dexjax.config import ConfigError, number_hint, parse_json, parse_yaml_documents
-from dexjax.render.camera import MAX_IMAGE_SIDE, Camera, Intrinsics
+from dexjax.render.camera import MAX_FOCAL_LENGTH, MAX_IMAGE_SIDE, Camera, Intrinsics
 
 ROTATION_TOLERANCE = 1e-4  # max |R^T R - I| and |det R - 1| accepted for a stored rotation
 
@@ -107,11 +107,19 @@ def _make_intrinsics(name: str, fx: float, fy: float, cx: float, cy: float, widt
                     width=width, height=height)
 
 
+#: What a focal length must be (`_focal`).
+_FOCAL = f'a finite number > 0 and <= {MAX_FOCAL_LENGTH:.0e} (pixels; MAX_FOCAL_LENGTH)'
+
+
+def _focal(name: str, field: str, value: Any, expected: str = _FOCAL) -> float:
+  """A focal length fx or fy in (0, `MAX_FOCAL_LENGTH`] pixels; ValueError naming ``name`` and ``field``."""
+  return _number(name, field, value, expected, lambda x: 0 < x <= MAX_FOCAL_LENGTH)
+
+
 def _plain_intrinsics(name: str, data: dict[str, Any]) -> Intrinsics:
   """Intrinsics from our ``fx, fy, cx, cy, width, height`` fields."""
-  positive = 'a finite number > 0 (pixels)'
-  fx = _number(name, 'fx', _field(name, data, 'fx')[1], positive, lambda x: x > 0)
-  fy = _number(name, 'fy', _field(name, data, 'fy')[1], positive, lambda x: x > 0)
+  fx = _focal(name, 'fx', _field(name, data, 'fx')[1])
+  fy = _focal(name, 'fy', _field(name, data, 'fy')[1])
   cx = _number(name, 'cx', _field(name, data, 'cx')[1], 'a finite number (pixels)')
   cy = _number(name, 'cy', _field(name, data, 'cy')[1], 'a finite number (pixels)')
   width = check_image_side(name, 'width', _field(name, data, 'width')[1])
@@ -135,9 +143,9 @@ def _matrix_k(name: str, field: str, value: Any) -> tuple[float, float, float, f
   if k is None or len(k) != 9:
     raise ValueError(f'{name}: {field}: expected {expected}, got {value!r}')
   k = [_number(name, f'{field}[{i}]', x, f'a finite number in {expected}') for i, x in enumerate(k)]
-  positive = 'a finite number > 0 (pixels); an all-zero K means the camera is uncalibrated'
-  fx = _number(name, f'{field}[0] (fx)', k[0], positive, lambda x: x > 0)
-  fy = _number(name, f'{field}[4] (fy)', k[4], positive, lambda x: x > 0)
+  focal = f'{_FOCAL}; an all-zero K means the camera is uncalibrated'
+  fx = _focal(name, f'{field}[0] (fx)', k[0], focal)
+  fy = _focal(name, f'{field}[4] (fy)', k[4], focal)
   if k[3] != 0 or k[6] != 0 or k[7] != 0 or k[8] != 1:
     raise ValueError(f'{name}: {field}: expected {expected}, got {value!r}')
   if k[1] != 0:
@@ -287,6 +295,19 @@ def load_camera(path: str | os.PathLike) -> Camera:
   position = _position(name, _field(name, data, 'position')[1])
   return Camera(intrinsics=intrinsics, rotation=jnp.asarray(rotation, jnp.float32),
                 position=jnp.asarray(position, jnp.float32))
+
+
+def load_pose(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+  """(rotation (3, 3), position (3,) metres), float64, of a posed camera file: its ``rotation`` (world-from-camera,
+  checked as `load_camera` checks it) and ``position``; intrinsics fields, if any, are not read (a world pose
+  needs none).
+
+  Raises:
+    ValueError: naming the file and the field (``rotation`` or ``position``) with the expected value.
+  """
+  name = os.fspath(path)
+  data = _read_mapping(path)
+  return _rotation(name, _field(name, data, 'rotation')[1]), _position(name, _field(name, data, 'position')[1])
 
 
 def check_camera_view(name: str, camera: Camera, floor_height: float = 0.0, far: float | None = None) -> Camera:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 
@@ -61,9 +62,20 @@ def _parser() -> argparse.ArgumentParser:
 SETTLE_ARRAYS = ('poses', 'object_ids', 'mask', 'left_bin', 'never_settled', 'steps', 'settled', 'object_names')
 
 
+#: Largest ``--heaps`` of one run (all are sampled and kept in memory together; split larger runs).
+MAX_HEAPS = 100_000
+
+#: Procedural difficulty levels ``preview --levels`` draws.
+LEVELS = (1, 2, 3)
+
+
 def _settle(args: argparse.Namespace) -> int:
-  if args.heaps < 1:
-    raise ValueError(f'--heaps: expected an integer >= 1, got {args.heaps}')
+  if not 1 <= args.heaps <= MAX_HEAPS:
+    raise ValueError(f'--heaps: expected an integer in [1, {MAX_HEAPS:,}] (MAX_HEAPS; split larger runs), got '
+                     f'{args.heaps}')
+  if not (math.isfinite(args.scale) and args.scale > 0):
+    raise ValueError(f'--scale: expected a finite number > 0 (metres per file unit, e.g. 0.001 for millimetres), '
+                     f'got {args.scale}')
   out = args.out and check_output_file(args.out, owned=owned_npz(*SETTLE_ARRAYS), overwrite=args.overwrite)
   check_object_sources(args.sources)  # a missing path or a huge range: exit 2 before any object is built
   report = load_object_set(args.sources, scale=args.scale, recursive=args.recursive)
@@ -97,6 +109,12 @@ def _settle(args: argparse.Namespace) -> int:
 
 
 def _preview(args: argparse.Namespace) -> int:
+  bad = [level for level in args.levels if level not in LEVELS]
+  if bad:
+    raise ValueError(f'--levels: expected difficulty levels among 1, 2 and 3, got {bad[0]}')
+  for option, value in (('--heaps-per-level', args.heaps_per_level), ('--pool', args.pool)):
+    if not 1 <= value <= MAX_HEAPS:
+      raise ValueError(f'{option}: expected an integer in [1, {MAX_HEAPS:,}], got {value}')
   out = check_output_file(args.out, option='OUT.png', owned=is_dexjax_png, overwrite=args.overwrite)
   from dexjax.sim.preview import procedural_heap_rows, save_heap_sheet  # pylint: disable=g-import-not-at-top
   rows = procedural_heap_rows(levels=args.levels, heaps_per_level=args.heaps_per_level, pool=args.pool,

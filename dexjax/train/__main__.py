@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 from dexjax.cli import command, report_failure
+from dexjax.config_rules import ConfigError
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -83,7 +84,15 @@ def main(argv: list[str] | None = None) -> int:
     config = dataclasses.replace(config, seed=args.seed)
   if args.init is not None:
     config = dataclasses.replace(config, init=args.init)
-  config = config.validate('command line')
+  try:
+    config = config.validate('command line')
+  except ConfigError as e:  # a value given as an option is named as the option
+    given = {'loop.epochs': ('--epochs', args.epochs), 'seed': ('--seed', args.seed),
+             'grippers': ('--grippers', args.grippers), 'init': ('--init', args.init)}
+    option, value = given.get(e.field, (None, None))
+    if value is None:
+      raise
+    raise ConfigError(option, e.field, e.problem) from None
   name = Path(args.config).stem if args.config else 'quickstart'
   out = _out_dir(args, name)
   if distributed.is_main_process():

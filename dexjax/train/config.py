@@ -14,11 +14,21 @@ import os
 from typing import Any, Mapping
 
 from dexjax.config import ConfigError, as_dict, check_sections, load_yaml, override, string_list
+from dexjax.config_rules import MAX_SAMPLES, count_rule
 from dexjax.data.shards import GRIPPER_NAMES
 from dexjax.models.gqcnn import PARALLEL_JAW_POSE_DIM, SUCTION_POSE_DIM, GQCNNConfig
 from dexjax.train.step import OptimizerConfig
 
 CLASS_BALANCE = ('none', 'weight', 'undersample')
+
+MAX_EPOCHS = 10_000
+"""Largest ``loop.epochs``."""
+
+MAX_BATCH_SIZE = 65_536
+"""Largest ``loop.batch_size`` and ``loop.eval_batch_size`` (examples per step)."""
+
+MAX_BUFFER_ROWS = 1_000_000
+"""Largest ``loop.shuffle_buffer`` and ``loop.normalization_rows`` (rows held in memory at once)."""
 BEST_METRICS = ('val_balanced_accuracy', 'val_average_precision', 'val_accuracy', 'val_loss')
 _MODEL_TUPLES = ('conv_filters', 'conv_kernels', 'pool_after')
 TARGETS = ('label', 'robust_probability', 'label_probability')
@@ -138,21 +148,24 @@ class TrainConfig:
     if self.crop_window < self.model.crop_size:
       raise ConfigError(source, 'crop_window', f'expected >= model.crop_size ({self.model.crop_size}), got '
                                                f'{self.crop_window}')
-    checks = [('loop.epochs', self.loop.epochs >= 1, 'an integer >= 1'),
-              ('loop.batch_size', self.loop.batch_size >= 1, 'an integer >= 1'),
-              ('loop.eval_batch_size', self.loop.eval_batch_size >= 1, 'an integer >= 1'),
-              ('loop.normalization_rows', self.loop.normalization_rows >= 1, 'an integer >= 1'),
-              ('loop.class_balance', self.loop.class_balance in CLASS_BALANCE, f'one of {CLASS_BALANCE}'),
-              ('loop.target', self.loop.target in TARGETS, f'one of {TARGETS}'),
-              ('loop.label_draws', self.loop.label_draws >= 1, 'an integer >= 1'),
-              ('loop.label_threshold', 0.0 <= self.loop.label_threshold < 1.0, 'a probability in [0, 1)'),
+    loop = self.loop
+    checks = [count_rule('loop.epochs', loop.epochs, 1, MAX_EPOCHS),
+              count_rule('loop.batch_size', loop.batch_size, 1, MAX_BATCH_SIZE),
+              count_rule('loop.eval_batch_size', loop.eval_batch_size, 1, MAX_BATCH_SIZE),
+              count_rule('loop.normalization_rows', loop.normalization_rows, 1, MAX_BUFFER_ROWS),
+              ('loop.class_balance', loop.class_balance in CLASS_BALANCE, f'one of {CLASS_BALANCE}'),
+              ('loop.target', loop.target in TARGETS, f'one of {TARGETS}'),
+              count_rule('loop.label_draws', loop.label_draws, 1, MAX_SAMPLES, 'Monte-Carlo draws'),
+              ('loop.label_threshold', 0.0 <= loop.label_threshold < 1.0, 'a probability in [0, 1)'),
               ('split.by', self.split.by in ('heap', 'object'), "'heap' or 'object'"),
               ('split.val_fraction', 0.0 < self.split.val_fraction < 1.0, 'a fraction in (0, 1)'),
+              ('split.seed', self.split.seed >= 0, 'an integer >= 0'),
               ('checkpoint.every_steps', self.checkpoint.every_steps >= 1, 'an integer >= 1'),
               ('checkpoint.keep', self.checkpoint.keep >= 1, 'an integer >= 1'),
               ('checkpoint.best_metric', self.checkpoint.best_metric in BEST_METRICS, f'one of {BEST_METRICS}'),
-              ('loop.shuffle_buffer', self.loop.shuffle_buffer >= 1, 'an integer >= 1'),
+              count_rule('loop.shuffle_buffer', loop.shuffle_buffer, 1, MAX_BUFFER_ROWS),
               ('optimizer.learning_rate', self.optimizer.learning_rate > 0, 'a number > 0'),
+              ('optimizer.weight_decay', self.optimizer.weight_decay >= 0, 'a number >= 0'),
               ('optimizer.momentum', 0 <= self.optimizer.momentum < 1, 'a number in [0, 1)'),
               ('optimizer.decay_rate', 0 < self.optimizer.decay_rate <= 1, 'a factor in (0, 1]'),
               ('optimizer.decay_epochs', self.optimizer.decay_epochs > 0, 'a number > 0'),
@@ -215,10 +228,12 @@ def train_config_from_dict(data: Mapping[str, Any], source: str = '<config>') ->
       grippers=(string_list(data['grippers'], source=source, field='grippers', what=f'names from {GRIPPER_NAMES}')
                 if 'grippers' in data else c.grippers),
       model=_model(data.get('model'), source),
-      optimizer=override(c.optimizer, data.get('optimizer'), source=source, section='optimizer', minimum=0),
-      loop=override(c.loop, data.get('loop'), source=source, section='loop', minimum=0),
-      split=override(c.split, data.get('split'), source=source, section='split', minimum=0),
-      checkpoint=override(c.checkpoint, data.get('checkpoint'), source=source, section='checkpoint', minimum=0),
+      # No generic minimum: `TrainConfig.validate` holds one rule per field (e.g. loop.epochs in [1, 10,000]),
+      # the same for a file and the command line.
+      optimizer=override(c.optimizer, data.get('optimizer'), source=source, section='optimizer'),
+      loop=override(c.loop, data.get('loop'), source=source, section='loop'),
+      split=override(c.split, data.get('split'), source=source, section='split'),
+      checkpoint=override(c.checkpoint, data.get('checkpoint'), source=source, section='checkpoint'),
       quickstart=qs)
   return config.validate(source)
 
