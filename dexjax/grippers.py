@@ -35,6 +35,10 @@ SUCTION_RATED_MASS_KG = SUCTION_PAYLOAD_KG / SUCTION_SAFETY_FACTOR
 #: test (`SuctionGripper.bellows_stiffness`) and the physics judge's bellows (`dexjax.bench.gripper_bodies`) share it.
 BELLOWS_STIFFNESS = 0.05
 
+#: The bellows' bending range, rad (about 30 degrees: the "angle compensation" bellows cups are sold for; an
+#: estimate). The labels' tipping test (`SuctionGripper.bellows_max_angle`) and the physics judge's bellows share it.
+BELLOWS_MAX_ANGLE = 0.5
+
 
 @struct.dataclass
 class ParallelJawGripper:
@@ -125,9 +129,10 @@ class SuctionGripper:
       V / (2 pi): the largest amplitude that keeps the lip pressure of the vacuum non-negative.
     max_strain: largest relative length change of any spring for a seal (Dex-Net 3.0: 10 %).
     bellows_stiffness: k, the bellows' bending stiffness, N m / rad (`BELLOWS_STIFFNESS`, an estimate). A held
-      object whose centre of mass stands h above the bellows' pivot (half the cone height behind the lip) against
-      gravity is an inverted pendulum on the bellows: it tips over unless k > m g h (`suction_quality`'s
-      ``tips``; e.g. a bowl held from inside).
+      object bends the bellows about their pivot (half the cone height behind the lip) until the spring balances
+      its weight's torque; it tips over when that takes more than the bellows' range (`suction_quality`'s
+      ``tips``, `dexjax.quality.grasp_quality.bellows_margin`; e.g. a bowl held from inside).
+    bellows_max_angle: a, the bellows' bending range, rad (`BELLOWS_MAX_ANGLE`, an estimate).
     contact_tolerance: the approach ray through the grasp centre must first hit the object within this
       distance of the centre (along the approach), metres; otherwise the approach is blocked or misses.
     num_ring_vertices: static, vertices of the perimeter polygon (Dex-Net 3.0: 8).
@@ -143,6 +148,7 @@ class SuctionGripper:
   elastic_limit: float = SUCTION_PAYLOAD_KG * STANDARD_GRAVITY / (2.0 * math.pi)
   max_strain: float = 0.1
   bellows_stiffness: float = BELLOWS_STIFFNESS
+  bellows_max_angle: float = BELLOWS_MAX_ANGLE
   contact_tolerance: float = 0.005
   num_ring_vertices: int = struct.field(pytree_node=False, default=8)
   num_edge_subsamples: int = struct.field(pytree_node=False, default=2)
@@ -160,6 +166,7 @@ class SuctionGripper:
         number_rule('elastic_limit', self.elastic_limit, 0, MAX_FORCE, 'newtons per radian'),
         ('max_strain', 0 < number_or_nan(self.max_strain) < 1, 'a fraction in (0, 1)'),
         number_rule('bellows_stiffness', self.bellows_stiffness, 0, MAX_FORCE, 'N m per radian'),
+        number_rule('bellows_max_angle', self.bellows_max_angle, 0, math.pi / 2, 'radians', low_open=True),
         number_rule('contact_tolerance', self.contact_tolerance, 0, MAX_GRIPPER_SIZE, 'metres', low_open=True),
         count_rule('num_ring_vertices', self.num_ring_vertices, 3, MAX_STATIC_COUNT),
         count_rule('num_edge_subsamples', self.num_edge_subsamples, 0, MAX_STATIC_COUNT),

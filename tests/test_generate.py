@@ -68,14 +68,15 @@ def test_dexnet4_yaml_spells_out_the_defaults():
 
 
 def test_fingerprints_are_known_answers():
-  """Known answers: the fingerprints of the defaults and SMALL with labels version 5 (2026-12-06: the suction
-  reward's bellows tipping test and the cup's ``bellows_stiffness``) and procedural objects version 4 (2026-12-06:
-  level-1 flat faces at least the cup's width); every dataset of an older labels or objects version gets a new
+  """Known answers: the fingerprints of the defaults and SMALL with labels version 6 (2026-12-06: the suction
+  reward's bellows tipping test with the centre of mass's offset and the cup's ``bellows_max_angle``) and
+  procedural objects version 4 (2026-12-06: level-1 flat faces at least the cup's width); every dataset of an
+  older labels or objects version gets a new
   fingerprint, so none is resumed with other labels or other meshes. The speed-only settling fields never change
   a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == '064ecba965e67f25'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '1227496361d42e78'
+  assert fingerprint(awake(GenerateConfig())) == '3f57fdd5e33c25eb'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '3bbb94666a92c9f9'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))

@@ -15,7 +15,7 @@ from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality import (FAILURE_REASONS, Conditions, nominal_conditions, parallel_jaw_perturbations,
                             parallel_jaw_quality, robust_parallel_jaw_quality, robust_suction_quality,
                             suction_perturbations, suction_quality)
-from dexjax.quality.grasp_quality import parallel_jaw_residual, suction_residual
+from dexjax.quality.grasp_quality import bellows_margin, parallel_jaw_residual, suction_residual
 
 PJ = ParallelJawGripper()
 CUP = SuctionGripper()
@@ -98,6 +98,26 @@ def test_suction_object_above_the_cup_tips_over_on_the_bellows(box):
                          ] == "none"
   assert FAILURE_REASONS[int(_suction_quality(box, _suction([0.0, 0.0, 0.02]), CUP,
                                               c.replace(mass=jnp.float32(0.5))).failure)] == "none"
+
+
+def test_suction_object_off_the_cups_axis_bends_the_bellows_to_their_stop(box):
+  """Labels version 6: held from below 5 mm off its centre, the box's centre of mass stands h = 2.5 cm above the
+  bellows' pivot and d = 5 mm beside it; the bellows (k = 0.05 N m/rad, range a = 0.5 rad) hold it within their
+  range iff m <= k a / (g (d cos a + h sin a)) = 0.1557 kg, where the rule without the offset (k > m g h) allowed
+  0.204 kg. A longer-ranged bellows holds the heavier box."""
+  a, k, h, d = 0.5, 0.05, 0.025, 0.005
+  limit = k * a / (9.81 * (d * np.cos(a) + h * np.sin(a)))
+  assert 0.155 < limit < 0.156
+  below = SuctionGrasp(center=jnp.array([d, 0.0, -0.02]), approach=jnp.array([0.0, 0.0, 1.0]))
+  c = Conditions(mass=jnp.float32(0.985 * limit), friction=jnp.float32(0.8), gravity=DOWN, disturbance=jnp.zeros(6))
+  heavier = c.replace(mass=jnp.float32(1.015 * limit))
+  assert FAILURE_REASONS[int(_suction_quality(box, below, CUP, c).failure)] == "none"
+  assert FAILURE_REASONS[int(_suction_quality(box, below, CUP, heavier).failure)] == "tips"
+  assert FAILURE_REASONS[int(_suction_quality(box, below, CUP.replace(bellows_max_angle=0.6), heavier).failure)
+                         ] == "none"
+  np.testing.assert_allclose(
+      float(bellows_margin(box, suction_seal(box, below, CUP), CUP, heavier)),
+      k * a / (9.81 * float(heavier.mass)) - (d * np.cos(a) + h * np.sin(a)), atol=2e-5)
 
 
 def test_suction_centre_of_top_face_resists_edge_and_hole_do_not(box, box_with_hole):

@@ -34,7 +34,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from dexjax.grippers import BELLOWS_STIFFNESS, ParallelJawGripper, SuctionGripper
+from dexjax.grippers import BELLOWS_MAX_ANGLE, BELLOWS_STIFFNESS, ParallelJawGripper, SuctionGripper
 from dexjax.quality.gripper_geometry import GripperGeometry
 
 HAND, TARGET, VACUUM = 'hand', 'tool_target', 'vacuum'
@@ -83,8 +83,8 @@ class ToolSettings:
       inertia about the hinge).
     bellows_damping_ratio: damping ratio of the bellows' bending with the held object (an estimate: silicone
       rubber's loss factor of about 0.1-0.2 alone gives 0.05-0.1; the air the bellows pumps adds to it).
-    bellows_max_angle: the bellows' bending range, rad (about 30 degrees: the "angle compensation" bellows cups
-      are sold for; an estimate).
+    bellows_max_angle: the bellows' bending range, rad (`dexjax.grippers.BELLOWS_MAX_ANGLE`, shared with the
+      labels' tipping test: about 30 degrees, the "angle compensation" bellows cups are sold for; an estimate).
     fingertip_protrusion: how far the soft fingertip stands out of the pad's face, m (the seed's "custom silicone
       fingertips"; the analytic model closes soft point contacts along one line, not flat pads: a rigid 2 x 6 cm
       pad meets a tapered face at its edge and squeezes the object out where the point contacts hold it; an
@@ -107,7 +107,7 @@ class ToolSettings:
   sealed_stiffness: float = BELLOWS_STIFFNESS
   sealed_armature: float = 5e-5
   bellows_damping_ratio: float = 0.3
-  bellows_max_angle: float = 0.5
+  bellows_max_angle: float = BELLOWS_MAX_ANGLE
   lip_mass: float = 0.02
   fingertip_protrusion: float = 0.003
 

@@ -45,7 +45,9 @@ PARALLEL_JAW, SUCTION = 0, 1
 #: solids' corners (jaws) and rims (cup, shaft), exact against the floor, and the jaws' boxes against the walls.
 #: 5: a suction grasp fails with ``tips`` when the object's centre of mass stands so high above the cup's bellows
 #: that it tips over on them (k < m g h, `dexjax.quality.grasp_quality.bellows_margin`): a bowl held from inside.
-LABEL_VERSION = 5
+#: 6: the tipping test has the centre of mass's offset from the bellows' axis and the bellows' range
+#: (k a >= m g (d cos a + h sin a), `bellows_margin`): a bowl held a few mm off its axis bends them to the stop.
+LABEL_VERSION = 6
 
 
 @struct.dataclass

@@ -126,18 +126,29 @@ def suction_residual(model: ObjectModel, seal: SealResult, gripper: SuctionGripp
 
 def bellows_margin(model: ObjectModel, seal: SealResult, gripper: SuctionGripper, conditions: Conditions,
                    config: QualityConfig = QualityConfig()) -> jax.Array:
-  """() metres, >= 0 iff the held object does not tip over on the cup's bellows: k / (m g) - h.
+  """() metres, >= 0 iff the bellows hold the object within their bending range: k a / (m g) - (d cos a + h sin a).
 
-  The bellows bends about a pivot half the cone height behind the lip (``seal.contact - seal.approach *
-  cone_height / 2``; the physics judge's hinge, `dexjax.bench.gripper_bodies`); h = (c - pivot) . (-gravity) is
-  the height of the centre of mass c above it. An object whose centre of mass stands above the pivot is an
-  inverted pendulum on a torsion spring of stiffness k (``gripper.bellows_stiffness``), statically stable iff
-  k > m g h; h <= 0 (hanging, or the centre of mass level with the pivot) always passes (the lip's torque limits
-  are the wrench test's). Mass m and gravity come from ``conditions``."""
+  The bellows bend about a pivot half the cone height behind the lip (``seal.contact - seal.approach *
+  cone_height / 2``; the physics judge's hinge, `dexjax.bench.gripper_bodies`). With c the centre of mass minus
+  the pivot, h = c . (-gravity) its height above the pivot and d its distance from the vertical through it, the
+  weight turns the object about the pivot with the torque m g (d cos t + h sin t) at a tilt t (towards d), and
+  the bellows' spring of stiffness k (``gripper.bellows_stiffness``) answers k t. The object comes to rest where
+  they balance; that is within the bellows' range a (``gripper.bellows_max_angle``) iff k a >= m g (d cos a +
+  h sin a) (the difference of the two torques is convex in t on [0, a] while the weight's torque is positive, and
+  starts at -m g d <= 0, so it crosses zero once in [0, a] or never). Beyond the range the bellows stop and the
+  lip takes the whole torque: the object tips over on the cup (a bowl held from inside, an overhang held from
+  below; with d = 0 the inverted pendulum's k > m g h sin(a) / a). Mass m and gravity come from ``conditions``.
+  Labels version 6 (version 5 tested k > m g h, with no lateral offset: a bowl held 5 mm off its axis passed it
+  and tipped to the stop in the physics judge)."""
   pivot = seal.contact - seal.approach * (0.5 * gripper.cone_height)
-  height = jnp.dot(model.center_of_mass - pivot, -conditions.gravity)
+  arm = model.center_of_mass - pivot
+  up = -conditions.gravity
+  height = jnp.dot(arm, up)
+  lateral = arm - height * up
+  offset = jnp.sqrt(jnp.maximum(jnp.dot(lateral, lateral), 1e-12))  # finite gradient at d = 0
   weight = conditions.mass * config.gravity_acceleration
-  return gripper.bellows_stiffness / jnp.maximum(weight, 1e-12) - height
+  a = gripper.bellows_max_angle
+  return gripper.bellows_stiffness * a / jnp.maximum(weight, 1e-12) - (offset * jnp.cos(a) + height * jnp.sin(a))
 
 
 def _passes(checks) -> jax.Array:
@@ -186,8 +197,8 @@ def suction_quality(model: ObjectModel, grasp: SuctionGrasp, gripper: SuctionGri
   """Seal and suction-ring wrench resistance of a suction grasp (object frame).
 
   Fails with ``no_contact`` when the approach ray misses the object near the grasp centre (or something is in
-  the way), ``no_seal`` when the spring model does not seal, ``tips`` when the object's centre of mass stands so
-  high above the bellows that it tips over on them (`bellows_margin`; not in Dex-Net 3.0's model, whose cup is
+  the way), ``no_seal`` when the spring model does not seal, ``tips`` when the object's weight bends the bellows
+  beyond their range (`bellows_margin`; not in Dex-Net 3.0's model, whose cup is
   rigid behind the lip), and ``not_resisted`` when no admissible lip forces and torques (vacuum, friction,
   torsional friction, elastic limit) balance the external wrench.
   """
