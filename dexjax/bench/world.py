@@ -24,6 +24,7 @@ import re
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from dexjax.generate.cameras import image_size
@@ -117,7 +118,7 @@ class PickingWorld:
     self.params: LabelParams = label_params(config)
     width, height = image_size(config)
     self.renderer = DepthRenderer(width, height, backend=config.dataset.render_backend, settings=config.render)
-    self._scene: tuple[Any, Any, Any] = (None, None, None)  # (key, HeapScene, the state it belongs to)
+    self._scenes: tuple[Any, dict[Any, HeapScene], Any] = (None, {}, None)  # (state id, scenes, the state)
 
   def close(self) -> None:
     self.renderer.close()
@@ -175,17 +176,23 @@ class PickingWorld:
   def scene(self, state: BinState, known_mass: bool = False, loads: bool = False) -> HeapScene:
     """The analytic reward's view of the bin: the objects' models in slot order, poses and friction (and, with
     ``known_mass``, each object's simulated mass instead of the reward's Gamma draws; with ``loads``, the load
-    each object carries from its neighbours at rest, `dexjax.sim.resting_loads.resting_loads`). The last scene is
-    kept, so the judges and the supervisor of one attempt share one copy of the stacked distance grids."""
-    key = (id(state), known_mass, loads)
-    if self._scene[0] != key:
+    each object carries from its neighbours at rest, `dexjax.sim.resting_loads.resting_loads`). The last state's
+    scenes are kept, so the judges and the supervisor of one attempt share one copy of the stacked distance grids
+    and measure the loads once."""
+    if self._scenes[0] != id(state):
+      self._scenes = (id(state), {}, state)  # the state is kept so that its id is not reused while cached
+    scenes = self._scenes[1]
+    if (known_mass, loads) not in scenes:
+      base = scenes.get((False, False))
+      if base is None:
+        base = scenes[(False, False)] = heap_scene(self.models, state.object_ids, state.mask, state.poses,
+                                                   state.friction)
       mass = None
       if known_mass:
-        mass = np.array([self.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
-      carried = self.loads(state) if loads else None
-      self._scene = (key, heap_scene(self.models, state.object_ids, state.mask, state.poses, state.friction, mass,
-                                     carried), state)
-    return self._scene[1]
+        mass = jnp.asarray([self.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], jnp.float32)
+      carried = jnp.asarray(self.loads(state)) if loads else None
+      scenes[(known_mass, loads)] = base.replace(mass=mass, loads=carried)
+    return scenes[(known_mass, loads)]
 
   def loads(self, state: BinState) -> np.ndarray:
     """(P, 6) float32 the load on each slot's object from its neighbours at rest (force N, torque N m about its
