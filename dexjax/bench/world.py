@@ -38,7 +38,7 @@ from dexjax.render.rendering import DepthRenderer, build_render_scene, empty_bin
 from dexjax.objects.collision import HullSettings, cached_collision_hulls
 from dexjax.sim.bodies import heap_objects
 from dexjax.sim.heap import HeapState, sample_heap_state
-from dexjax.sim.resting_loads import resting_loads
+from dexjax.sim.contact_loads import resting_loads
 from dexjax.sim.settling import settle
 
 _PROCEDURAL_LEVEL = re.compile(r'procedural:L([123])/')
@@ -176,7 +176,7 @@ class PickingWorld:
   def scene(self, state: BinState, known_mass: bool = False, loads: bool = False) -> HeapScene:
     """The analytic reward's view of the bin: the objects' models in slot order, poses and friction (and, with
     ``known_mass``, each object's simulated mass instead of the reward's Gamma draws; with ``loads``, the load
-    each object carries from its neighbours at rest, `dexjax.sim.resting_loads.resting_loads`). The last state's
+    each object carries from its neighbours at rest, `dexjax.sim.contact_loads.resting_loads`). The last state's
     scenes are kept, so the judges and the supervisor of one attempt share one copy of the stacked distance grids
     and measure the loads once."""
     if self._scenes[0] != id(state):
@@ -196,7 +196,7 @@ class PickingWorld:
 
   def loads(self, state: BinState) -> np.ndarray:
     """(P, 6) float32 the load on each slot's object from its neighbours at rest (force N, torque N m about its
-    centre of mass; world frame; `dexjax.sim.resting_loads.resting_loads`), zero in empty slots."""
+    centre of mass; world frame; `dexjax.sim.contact_loads.resting_loads`), zero in empty slots."""
     if not state.count:
       return np.zeros((state.mask.shape[0], 6), np.float32)
     return resting_loads(self.bodies, self.heap_state(state), state.poses, self.config.settle)

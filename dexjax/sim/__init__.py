@@ -17,7 +17,7 @@ from dexjax.sim.scene import (SettleSettings, bin_boxes, build_heap_model, compi
                               heap_spec, initial_qpos, quat_to_matrix)
 from dexjax.sim.mjx_backend import SettleTimeout
 from dexjax.sim.rest import object_speeds, resting, rotate
-from dexjax.sim.resting_loads import resting_loads
+from dexjax.sim.contact_loads import resting_loads
 from dexjax.sim.settling import BACKENDS, SettleResult, default_backend, settle
 
 __all__ = [

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 import dexjax.sim as sim
-from dexjax.sim.resting_loads import resting_loads
+from dexjax.sim.contact_loads import resting_loads
 
 G = 9.81
 
