@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _machine import describe  # noqa: E402
 
 from dexjax.generate import GenerateConfig  # noqa: E402
-from dexjax.generate.pipeline import usable_objects  # noqa: E402
+from dexjax.objects.sets import usable_objects  # noqa: E402
 from dexjax.sim.bodies import heap_objects  # noqa: E402
 from dexjax.sim.heap import sample_heap_states, select_heap  # noqa: E402
 from dexjax.sim.scene import build_heap_model, heap_slots  # noqa: E402

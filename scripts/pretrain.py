@@ -206,7 +206,7 @@ def _label_ceiling(args) -> dict:
   import numpy as np  # pylint: disable=g-import-not-at-top
   from dexjax.data import GRIPPER_NAMES, read_shard  # pylint: disable=g-import-not-at-top
   from dexjax.generate import label_params  # pylint: disable=g-import-not-at-top
-  from dexjax.generate.pipeline import usable_objects  # pylint: disable=g-import-not-at-top
+  from dexjax.objects.sets import usable_objects  # pylint: disable=g-import-not-at-top
   from dexjax.generate.run import load_run_config  # pylint: disable=g-import-not-at-top
   from dexjax.models.shipped import load_models  # pylint: disable=g-import-not-at-top
   from dexjax.quality.heap_reward import NONE, NOT_ROBUST  # pylint: disable=g-import-not-at-top

@@ -8,6 +8,11 @@
 * every cell runs in order in a fresh ``python3`` kernel started in a temporary working directory, which
   inherits this process's environment (``DEXJAX_CACHE``, ``XLA_FLAGS``, the JAX cache settings conftest exports);
   any cell error fails with nbclient's ``CellExecutionError`` (the cell, the exception and its traceback);
+* as in Jupyter, what the kernel's C and C++ code writes to file descriptors 1 and 2 appears in the cells' outputs
+  (ipykernel captures it unless it runs under pytest, so the kernel does not inherit ``PYTEST_CURRENT_TEST``); the
+  kernel's standard error passes through `dexjax.compile_cache.quiet_tuning_feature_warnings` from its start
+  (`QUIET_KERNEL`), as a CLI's does inside its compilation cache: the kernel uses the session's JAX cache, and each
+  hit would print XLA:CPU's false tuning-attribute warning into a cell's output; every other line is kept;
 * a last cell evaluates the test's ``values`` expressions in the kernel and pickles them (JAX arrays as NumPy,
   containers and their order kept) for the test to check.
 """
@@ -24,6 +29,11 @@ from typing import Any
 
 NOTEBOOKS = pathlib.Path(__file__).resolve().parent.parent / "notebooks"
 PARAMETERS_TAG = "parameters"
+#: Run by the kernel at start-up (IPython ``exec_lines``, after ipykernel captures file descriptor 2): enters
+#: `quiet_tuning_feature_warnings` for the kernel's lifetime (the context manager is kept in the namespace).
+QUIET_KERNEL = ("import dexjax.compile_cache as _compile_cache; "
+                "_dexjax_quiet_stderr = _compile_cache.quiet_tuning_feature_warnings(); "
+                "_dexjax_quiet_stderr.__enter__(); del _compile_cache")
 
 
 @dataclasses.dataclass
@@ -47,6 +57,10 @@ class NotebookRun:
   def stdout(self) -> str:
     """Everything the cells printed."""
     return "".join(o.text for o in self.outputs("stream") if o.name == "stdout")
+
+  def stderr(self) -> str:
+    """Everything the cells wrote to standard error (Python warnings, progress bars, C++ logs)."""
+    return "".join(o.text for o in self.outputs("stream") if o.name == "stderr")
 
 
 def code_cells(path: pathlib.Path) -> list:
@@ -119,9 +133,10 @@ def run_notebook(name: str, workdir: pathlib.Path, parameters: dict[str, Any] | 
   out = workdir / "values.pkl"
   nb.cells.append(_probe_cell(dict(values or {}), out))
   env = dict(os.environ)  # with the session's JAX cache settings (tests/conftest.py exports them)
+  env.pop("PYTEST_CURRENT_TEST", None)  # else ipykernel leaves C-level output (XLA's logs) out of the cells' outputs
   env["MPLBACKEND"] = "module://matplotlib_inline.backend_inline"  # ipykernel's default, whatever this process uses
-  client = NotebookClient(nb, timeout=timeout, kernel_name="python3",
-                          resources={"metadata": {"path": str(workdir)}})
+  client = NotebookClient(nb, timeout=timeout, kernel_name="python3", resources={"metadata": {"path": str(workdir)}},
+                          extra_arguments=[f"--IPKernelApp.exec_lines={QUIET_KERNEL}"])
   try:
     client.execute(env=env)
   finally:

@@ -25,10 +25,11 @@ from dexjax.data import (GRIPPER_NAMES, IMAGE_SCHEMA, ROW_SCHEMA, iterate_rows, 
                          shard_path)
 from dexjax.generate.__main__ import main
 from dexjax.generate.config import GenerateConfig, config_from_dict, fingerprint, load_generate_config
-from dexjax.generate.pipeline import ShardGenerator, label_params, usable_objects
+from dexjax.generate.pipeline import ShardGenerator, label_params
 from dexjax.generate.relabel import generation_reward_keys, relabel_dataset, relabel_shard
 from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions
 from dexjax.generate.run import generate_dataset, load_run_config, num_shards
+from dexjax.objects.sets import usable_objects
 from dexjax.quality import REWARD_FAILURES
 from dexjax.quality.heap_reward import NONE, NOT_ROBUST
 from dexjax.sampling import grasp_crop
@@ -419,16 +420,17 @@ def test_generated_shards_train_both_gqcnns_and_score_every_row(run, tmp_path):
 
 
 def test_labels_match_the_recorded_rows(run):
-  """The small run's rows equal (bit for bit but for float32 geometry, below) those dexjax fd3cb0a made for the
+  """The small run's rows equal (bit for bit but for float32 geometry, below) those dexjax f61f1bb made for the
   same config and seed. The reference was recorded first before the throughput work of issue 18 (dexjax 07484d8,
   which these rows matched until then), again at f658897, when issue 42 changed what a run makes: level-1
   objects of household size with masses from their materials (SMALL uses procedural:L1/0:3) and labels version 4
   (the refined jaw collision test), at b5f2867, when level-1 cylinders became at least 4 cm across
-  (procedural:L1/1 is one), and at fd3cb0a, when level-1 flat faces became at least the cup's 2 cm wide
-  (procedural:L1/2 is a rounded box). SMALL keeps ``settle.sleep`` off.
+  (procedural:L1/1 is one), at fd3cb0a, when level-1 flat faces became at least the cup's 2 cm wide
+  (procedural:L1/2 is a rounded box), and at f61f1bb, labels version 6 (the bellows' range in the suction
+  tipping test: 1 of the 128 rewards changed). SMALL keeps ``settle.sleep`` off.
   Recorded with ``scripts/record_generate_reference.py``; a render backend other than the recording's draws other
   depth images, so the comparison then needs that backend."""
-  reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_fd3cb0a.npz')
+  reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_f61f1bb.npz')
   config, out, _, _ = run
   shards = [read_shard(shard_path(out, i)) for i in range(num_shards(config, NUM_IMAGES))]
   from dexjax.render import DepthRenderer

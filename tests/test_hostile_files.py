@@ -24,7 +24,8 @@ from dexjax.plan import main as plan_main
 from dexjax.quality.__main__ import main as quality_main
 from dexjax.quality.grasp_json import GraspFileError, load_grasp_json
 from dexjax.render.__main__ import main as render_main
-from dexjax.render.intrinsics_io import MAX_IMAGE_SIDE, load_intrinsics
+from dexjax.render.camera import MAX_IMAGE_SIDE
+from dexjax.render.intrinsics_io import load_intrinsics
 from dexjax.train.__main__ import main as train_main
 
 DEEP = 5000  # 15 kB of brackets: past Python's recursion limit in every recursive parser
@@ -121,6 +122,20 @@ def test_deeply_nested_files_are_refused_by_the_library_readers(tmp_path):
   # an existing output file that is deeply nested JSON is not the command's own: refused, no RecursionError
   with pytest.raises(cli.OutputError, match='was not written by this command'):
     cli.check_output_file(deep_json, owned=cli.owned_json('grasps'))
+
+
+def test_deeply_nested_run_records_and_shard_meta_are_unreadable(tmp_path):
+  """A generation run's ``config.json`` and a shard's JSON meta are read by `dexjax.config.parse_json`: nested
+  thousands deep, they are not the run's own (no RecursionError)."""
+  from dexjax.data.shards import ShardError, read_shard  # pylint: disable=import-outside-toplevel
+  from dexjax.generate.run import load_run_config  # pylint: disable=import-outside-toplevel
+  _write(tmp_path / 'config.json', DEEP_TEXT)
+  with pytest.raises(FileNotFoundError, match='config.json: no run config record'):
+    load_run_config(tmp_path)
+  np.savez(tmp_path / 'shard.npz', __meta__=np.array(DEEP_TEXT))
+  with pytest.raises(ShardError, match=r"field '__meta__': expected JSON, got line 1, column \d+: lists or mappings "
+                                       'nested deeper'):
+    read_shard(tmp_path / 'shard.npz')
 
 
 def test_a_resumed_run_with_a_deeply_nested_config_record_is_refused(tmp_path):

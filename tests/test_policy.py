@@ -73,6 +73,16 @@ class ConstantScorer:
     return jnp.full(grasps.center.shape[:1], self.value, jnp.float32)
 
 
+@struct.dataclass
+class RecentringScorer(ConstantScorer):
+  """A constant score, with the optional ``refine`` of the scorer protocol moving every candidate to ``target``."""
+
+  target: jax.Array = None
+
+  def refine(self, obs, grasps):
+    return grasps.replace(center=jnp.broadcast_to(self.target, grasps.center.shape))
+
+
 _plan = jax.jit(plan_grasp, static_argnames='samples')
 _vplan = jax.jit(jax.vmap(plan_grasp, in_axes=(0, None, None)))
 
@@ -218,6 +228,17 @@ def test_cem_samples_record_every_round():
   assert int(s.valid[0, 0].sum()) > 0 and not np.any(np.asarray(s.valid[0, 1:, SMALL_CEM.num_resample:]))
   best_per_round = np.max(np.where(s.valid[0], s.quality[0], -np.inf), axis=-1)
   assert best_per_round[-1] >= best_per_round[0] and float(action.probability) == pytest.approx(best_per_round[-1])
+
+
+def test_ranking_scores_and_returns_the_candidates_a_scorer_refines():
+  """A scorer's optional ``refine`` (`dexjax.policy.scorers.refined_candidates`) turns the candidates before the
+  ranking policy scores them, under jit too; a scorer without one gets the sampled candidates."""
+  target = jnp.array([40.0, 50.0])
+  refined = _plan(jax.random.key(3), DISC, RankingPolicy(RecentringScorer(0.5, target=target), SUCTION_SAMPLER))
+  assert bool(refined.valid) and float(refined.probability) == pytest.approx(0.5)
+  np.testing.assert_allclose(refined.center, target)
+  sampled = _plan(jax.random.key(3), DISC, RankingPolicy(ConstantScorer(0.5), SUCTION_SAMPLER))
+  assert bool(sampled.valid) and not np.allclose(sampled.center, target)
 
 
 def test_random_policy_draws_valid_candidates_of_both_grippers():

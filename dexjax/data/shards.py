@@ -22,6 +22,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from dexjax.config import ConfigError, parse_json
+
 FORMAT_VERSION = 2  # 2: images store the heap state's per-object friction
 MANIFEST_NAME = "manifest.json"
 _META_KEY = "__meta__"
@@ -241,9 +243,9 @@ def _parse_meta(path: Path, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     raise _fail(path, _META_KEY, "expected a JSON meta string, got no such member")
   text = arrays.pop(_META_KEY)
   try:
-    meta = json.loads(str(text.item()))
-  except (ValueError, RecursionError) as err:
-    raise _fail(path, _META_KEY, f"expected JSON, got {err}") from err
+    meta = parse_json(str(text.item()), _META_KEY, expected=None)  # nesting and duplicate keys refused too
+  except ConfigError as err:
+    raise _fail(path, _META_KEY, f"expected JSON, got {err.field + ': ' if err.field else ''}{err.problem}") from err
   if meta.get("format_version") != FORMAT_VERSION:
     raise _fail(path, "format_version", f"expected {FORMAT_VERSION}, got {meta.get('format_version')}")
   return meta

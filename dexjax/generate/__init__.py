@@ -14,8 +14,8 @@ from dexjax.generate.config import (DatasetConfig, GenerateConfig, ObjectsConfig
 from dexjax.generate.labels import (PARALLEL_JAW, SUCTION, ImageRows, LabelParams, label_image, pickable_mask,
                                     reward_keys)
 from dexjax.generate.parallel import RunResult, run_tasks
-from dexjax.generate.pipeline import (NoObjectsError, ShardGenerator, close_process_generators, generate_shard,
-                                      image_label_key, label_params, supervisor_sets, usable_objects)
+from dexjax.generate.pipeline import (ShardGenerator, close_process_generators, generate_shard, image_label_key,
+                                      label_params, supervisor_sets)
 from dexjax.generate.relabel import Relabelled, generation_reward_keys, relabel_shard, row_grasp
 from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
 from dexjax.generate.report import RowStats, format_summary, save_generation_png, summarize_rows
@@ -23,6 +23,7 @@ from dexjax.generate.run import check_run_dir, generate_dataset, load_run_config
 from dexjax.generate.supervisor import (GraspSet, SupervisorParams, cached_grasp_sets, heap_grasp_sets,
                                         parallel_jaw_grasp_set, parallel_jaw_supervisor_candidates,
                                         suction_grasp_set, suction_supervisor_candidates)
+from dexjax.objects.sets import NoObjectsError, usable_objects
 
 __all__ = [
   'CANDIDATE', 'PARALLEL_JAW', 'SUCTION', 'SUPERVISOR', 'DatasetConfig', 'GenerateConfig', 'GraspSet', 'ImageRows',

@@ -26,7 +26,7 @@ import numpy as np
 from dexjax.config import ConfigError, load_yaml, override, parse_yaml
 from dexjax.render.camera import Camera, Intrinsics
 from dexjax.render.distribution import CameraDistribution, sample_camera
-from dexjax.render.intrinsics_io import check_camera_view, check_image_side, load_camera_or_intrinsics
+from dexjax.render.intrinsics_io import check_camera_view, load_camera_or_intrinsics
 
 _DISTRIBUTION_FIELDS = frozenset(f.name for f in dataclasses.fields(CameraDistribution))
 
@@ -60,13 +60,8 @@ def apply_camera_file(config, path: str | os.PathLike[str]):
     dist = override(config.camera, load_yaml(path), source=path, section='camera')
     try:
       dist.validate()
-    except ValueError as e:
+    except ValueError as e:  # also an image side past MAX_IMAGE_SIDE (dexjax.render.camera.check_image_side)
       raise ConfigError(path, 'camera', str(e)) from None
-    try:
-      for side in ('width', 'height'):
-        check_image_side(path, side, getattr(dist, side))
-    except ValueError as e:
-      raise _config_error(path, e) from None
     return dataclasses.replace(config, camera=dist, camera_intrinsics=(), camera_pose=())
   try:
     k, camera = load_camera_or_intrinsics(path)

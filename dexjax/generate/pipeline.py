@@ -39,7 +39,7 @@ from dexjax.generate.cameras import image_size, run_camera
 from dexjax.generate.config import GenerateConfig, fingerprint
 from dexjax.generate.labels import ImageRows, LabelParams, label_image
 from dexjax.objects.folder import Rejection
-from dexjax.objects.sets import load_object_set, prepare_object_set
+from dexjax.objects.sets import NoObjectsError, usable_objects  # re-exported: callers import them from here too
 from dexjax.quality.heap_reward import HeapScene, heap_scene, scene_slot_ids
 from dexjax.render.noise import noisy_depth
 from dexjax.render.rendering import DepthRenderer, build_render_scene
@@ -49,10 +49,6 @@ from dexjax.sim.settling import settle
 
 _label = jax.jit(label_image)
 _STAGES = ('settle', 'render', 'label', 'write')
-
-
-class NoObjectsError(ValueError):
-  """No object of the run's sources could be loaded and prepared; the message lists the rejections."""
 
 
 def label_params(config: GenerateConfig) -> LabelParams:
@@ -75,22 +71,6 @@ def supervisor_sets(config: GenerateConfig, models: Sequence[Any], cache_dir: st
                                params=config.supervisor, jaw_perturbations=g.parallel_jaw_perturbations,
                                suction_perturbations=g.suction_perturbations, config=g.config,
                                cache_dir=os.path.join(cache_dir, 'supervisor') if cache_dir is not None else None)
-
-
-def usable_objects(config: GenerateConfig, cache_dir: str | os.PathLike[str] | None = None, progress: bool = False
-                   ) -> tuple[list[Any], list[Rejection]]:
-  """(prepared objects, rejections) of the run's object sources (`dexjax.objects.prepare_object_set`).
-
-  Raises:
-    NoObjectsError: no object could be used; the message lists each rejected file and its reason.
-  """
-  report = load_object_set(config.objects.sources, scale=config.objects.scale)
-  prepared, rejected = prepare_object_set(report, cache_dir=cache_dir, progress=progress,
-                                          grid_size=config.objects.grid_size)
-  if not prepared:
-    reasons = '; '.join(f'{r.file}: {r.reason}' for r in rejected) or 'no sources'
-    raise NoObjectsError(f'objects.sources {list(config.objects.sources)}: no object could be used ({reasons})')
-  return prepared, rejected
 
 
 def _empty_stats() -> dict[str, Any]:

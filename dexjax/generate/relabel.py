@@ -44,10 +44,11 @@ from dexjax.data.manifest import finish_shard, load_manifest, open_manifest, pen
 from dexjax.data.shards import GRIPPER_NAMES, Shard, read_shard, shard_path
 from dexjax.generate.config import fingerprint
 from dexjax.generate.labels import PARALLEL_JAW, SUCTION, LabelParams, reward_keys
-from dexjax.generate.pipeline import image_label_key, label_params, usable_objects
+from dexjax.generate.pipeline import image_label_key, label_params
 from dexjax.generate.report import RowStats
 from dexjax.generate.run import check_run_dir, load_run_config, write_run_config
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
+from dexjax.objects.sets import usable_objects
 from dexjax.quality.heap_reward import (NONE, NOT_ROBUST, HeapScene, RewardRecord, heap_scene, parallel_jaw_heap_reward,
                                        suction_heap_reward)
 from dexjax.sim.heap import HeapDistribution, sample_friction
@@ -125,7 +126,7 @@ def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.
   """The rewards of ``shard``'s rows drawn again (see the module docstring).
 
   Args:
-    models: the run's N object models (`dexjax.generate.usable_objects`, in the run's order: the shard's
+    models: the run's N object models (`dexjax.objects.usable_objects`, in the run's order: the shard's
       ``object_ids`` index them).
     params: the run's `LabelParams` (`dexjax.generate.label_params`); its ``reward.num_samples`` is M.
     shard: the shard (`dexjax.data.read_shard`).

@@ -25,16 +25,15 @@ from pathlib import Path
 from typing import Any
 
 from dexjax.cli import OutputError, check_output_dir, is_dexjax_png
-from dexjax.config import ConfigError, as_dict, validate_generate_config
+from dexjax.config import ConfigError, as_dict, parse_json, validate_generate_config
 from dexjax.data.manifest import manifest_problem, open_manifest, pending_shards
 from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
 from dexjax.generate.config import GenerateConfig, content_fields, fingerprint, load_generate_config
 from dexjax.geometry.cache import atomic_write_text
 from dexjax.generate.parallel import run_tasks
-from dexjax.generate.pipeline import (close_process_generators, generate_shard, process_generator,
-                                      supervisor_sets, usable_objects)
+from dexjax.generate.pipeline import close_process_generators, generate_shard, process_generator, supervisor_sets
 from dexjax.generate.report import RowStats
-from dexjax.objects.sets import load_object_set, prepare_object_set
+from dexjax.objects.sets import load_object_set, prepare_object_set, usable_objects
 
 CONFIG_NAME = 'config.json'
 PREVIEW_NAME = 'preview.png'
@@ -86,8 +85,8 @@ _STARTING_RUN_FILE = re.compile(r'\..+\.tmp-.*|\.tmp-.*|shard-\d{6}\.npz\.tmp-\d
 def _is_run_config(path: Path) -> bool:
   """True if ``path`` is a ``config.json`` this module wrote: a JSON object of exactly fingerprint and config."""
   try:
-    data = json.loads(path.read_text(encoding='utf-8'))
-  except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep
+    data = parse_json(path.read_text(encoding='utf-8'), os.fspath(path), expected=None)
+  except (OSError, ValueError):  # unreadable, not UTF-8, or refused by parse_json (ConfigError: deep nesting, ...)
     return False
   return isinstance(data, dict) and set(data) == {'fingerprint', 'config'}
 

@@ -42,6 +42,8 @@ from dexjax.objects.sets import check_object_sources
 from dexjax.objects.sets import expand_object_sources
 from dexjax.objects.sets import load_object_set
 from dexjax.objects.sets import prepare_object_set
+from dexjax.objects.sets import NoObjectsError
+from dexjax.objects.sets import usable_objects
 
 __all__ = [
     "BUILTIN_OBJECTS", "BUILTIN_PREFIX", "builtin_mesh", "check_object_spec", "load_object_model", "resolve_mesh",
@@ -51,7 +53,8 @@ __all__ = [
     "procedural_mesh_problems", "procedural_params", "procedural_spec", "procedural_specs", "Material",
     "CONVEX_SOLIDITY", "HullSettings", "cached_collision_hulls", "collision_hulls", "hulls_cache_key",
     "FolderReport", "LoadedObject", "PreparedObject", "Rejection", "load_mesh_folder", "prepare_object",
-    "check_object_sources", "expand_object_sources", "load_object_set", "prepare_object_set",
+    "check_object_sources", "expand_object_sources", "load_object_set", "prepare_object_set", "NoObjectsError",
+    "usable_objects",
     "save_contact_sheet", "ObjectMass", "object_masses", "mass_summary", "prior_summary",
 ]
 

@@ -15,8 +15,9 @@ A set is described by a list of *sources*, each one of:
 `load_object_set` resolves the sources into one `FolderReport`: every object that loaded, and every file
 or spec that did not, with its reason; one bad source never stops the others. `prepare_object_set` then
 builds (or loads from the on-disk cache) each object's `ObjectModel` and collision hulls, again moving
-objects that fail into the rejections instead of raising. The result feeds the quality code (``.model``)
-and the heap simulation (`dexjax.sim.heap_objects`).
+objects that fail into the rejections instead of raising. `usable_objects` does both for a config's ``objects``
+section and refuses a set of which no object could be used (`NoObjectsError`). The result feeds the quality code
+(``.model``) and the heap simulation (`dexjax.sim.heap_objects`).
 """
 
 from __future__ import annotations
@@ -227,3 +228,33 @@ def prepare_object_set(loaded: FolderReport | Sequence[LoadedObject], *,
     except Exception as e:  # One object must never stop the set.
       rejected.append(Rejection(o.path, f'preparing {o.name!r} failed: {type(e).__name__}: {e}'))
   return prepared, rejected
+
+
+class NoObjectsError(ValueError):
+  """No object of the run's sources could be loaded and prepared; the message lists the rejections."""
+
+
+def usable_objects(config: Any, cache_dir: str | os.PathLike[str] | None = None, progress: bool = False
+                   ) -> tuple[list[PreparedObject], list[Rejection]]:
+  """(prepared objects, rejections) of a config's object sources (`load_object_set`, then `prepare_object_set`).
+
+  Args:
+    config: a config with an ``objects`` section of ``sources``, ``scale`` and ``grid_size``
+      (`dexjax.generate.GenerateConfig`, whose section is `dexjax.generate.ObjectsConfig`).
+    cache_dir: object cache directory (`prepare_object_set`).
+    progress: show a progress bar (tqdm) on stderr.
+
+  Raises:
+    NoObjectsError: no object could be used; the message lists each rejected file and its reason.
+  """
+  report = load_object_set(config.objects.sources, scale=config.objects.scale)
+  prepared, rejected = prepare_object_set(report, cache_dir=cache_dir, progress=progress,
+                                          grid_size=config.objects.grid_size)
+  if not prepared:
+    reasons = '; '.join(f'{r.file}: {r.reason}' for r in rejected) or 'no sources'
+    raise NoObjectsError(f'objects.sources {list(config.objects.sources)}: no object could be used ({reasons})')
+  return prepared, rejected
+
+
+__all__ = ['BUILTIN_SETS', 'LEVEL_SET_SIZE', 'NoObjectsError', 'check_object_sources', 'expand_object_sources',
+           'load_object_set', 'prepare_object_set', 'usable_objects']

@@ -16,6 +16,7 @@ from flax import struct
 from dexjax.policy.actions import GraspAction, action_from_grasp, samples_of
 from dexjax.policy.candidates import Sampler, sample_candidates, sampler_gripper
 from dexjax.policy.observation import Observation
+from dexjax.policy.scorers import refined_candidates
 
 
 @struct.dataclass
@@ -23,7 +24,8 @@ class RankingPolicy:
   """Sample ``sampler.num_grasps`` candidates, return the best by ``scorer``.
 
   Attributes:
-    scorer: the quality function (`dexjax.policy.scorers`, `dexjax.policy.heuristics`).
+    scorer: the quality function (`dexjax.policy.scorers`, `dexjax.policy.heuristics`); its optional ``refine``
+      method turns the candidates before they are scored (`dexjax.policy.scorers.refined_candidates`).
     sampler: the gripper's image sampler (its ``num_grasps`` is N).
   """
 
@@ -63,9 +65,7 @@ def ranking_policy(key: jax.Array, observation: Observation, policy: RankingPoli
   """The best of N sampled candidates by the policy's scorer (``valid`` False when there is none). ``samples``
   (static) keeps the N candidates and their scores (one round) in ``action.samples``."""
   grasps, valid = sample_candidates(key, observation, policy.sampler)
-  refine = getattr(policy.scorer, 'refine', None)  # A heuristic that turns its candidates before scoring them.
-  if refine is not None:
-    grasps = refine(observation, grasps)
+  grasps = refined_candidates(policy.scorer, observation, grasps)  # e.g. a heuristic's fitted suction approaches
   quality = jnp.where(valid, policy.scorer(observation, grasps), -jnp.inf)
   best = jnp.argmax(quality)
   ok = jnp.isfinite(quality[best])

@@ -7,14 +7,26 @@ the learned scorers return p(success) in [0, 1], so the scores of two grippers' 
 (both networks are trained on the same reward, the key idea of the ambidextrous policy). Being pytrees, scorers
 pass through `jax.jit` as arguments: one compilation serves every set of weights of one architecture.
 
+Two methods are optional parts of the protocol; policies look for them, so a plain function-like scorer needs
+neither:
+
+* ``refine(observation, grasps) -> grasps``: the N candidates as the policy executes them, applied by the ranking
+  policy before scoring (`refined_candidates`; e.g. `SuctionPlanarityCentroid.refine` turns each suction approach
+  to its disc's best-fit normal). Without it the candidates are scored as sampled.
+* ``smooth(observation, grasps) -> (N,)``: the score, differentiable in the grasps (`dexjax.policy.polish`).
+
+The scorers:
+
 * `GQCNNScorer`: a trained GQ-CNN (`dexjax.models.GraspQualityModel`): each grasp's crop (`model_crop`, the crop
   rule of training) and pose vector ([depth] for the parallel jaw, [depth, approach angle] for suction).
-  Its ``smooth`` method is the same score through bilinear crops, differentiable in the grasp: a scorer with a
-  ``smooth(observation, grasps)`` method can be polished by gradient ascent (`dexjax.policy.polish`).
+  Its ``smooth`` method is the same score through bilinear crops, differentiable in the grasp, so it can be
+  polished by gradient ascent (`dexjax.policy.polish`).
 * The heuristic scorers of the baselines live in `dexjax.policy.heuristics`.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -71,4 +83,12 @@ class GQCNNScorer:
     return self.model(crop(grasps.center, grasps.angle)[..., None], pose_inputs(grasps))
 
 
-__all__ = ['GRIPPERS', 'PARALLEL_JAW', 'SUCTION', 'GQCNNScorer', 'pose_inputs']
+def refined_candidates(scorer: Any, observation: Observation, grasps: ImageParallelJawGrasp | ImageSuctionGrasp
+                       ) -> ImageParallelJawGrasp | ImageSuctionGrasp:
+  """N candidates as ``scorer`` would have them executed: ``scorer.refine(observation, grasps)`` when the scorer
+  has the optional ``refine`` method (module doc), else ``grasps`` unchanged. Traceable (the choice is static)."""
+  refine = getattr(scorer, 'refine', None)
+  return grasps if refine is None else refine(observation, grasps)
+
+
+__all__ = ['GRIPPERS', 'PARALLEL_JAW', 'SUCTION', 'GQCNNScorer', 'pose_inputs', 'refined_candidates']

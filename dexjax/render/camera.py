@@ -12,6 +12,9 @@ Conventions (OpenCV's, as in Dex-Net's perception package):
 
 from __future__ import annotations
 
+import numbers
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -26,6 +29,15 @@ MAX_IMAGE_SIDE = 4096
 #: Largest focal length fx, fy of an intrinsics file, pixels: a field of view of 0.23 degrees across 4096 pixels
 #: (a 1000 mm lens on 1 um pixels); larger values are a unit mistake and overflow float32 beyond 3.4e38.
 MAX_FOCAL_LENGTH = 1e6
+
+
+def check_image_side(name: str, field: str, value: Any) -> int:
+  """``value`` as an int; raises ValueError naming ``name`` (a file, or the checked class) and ``field`` unless it
+  is an integer (not a bool or a float) in [1, `MAX_IMAGE_SIDE`] pixels."""
+  if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 < value <= MAX_IMAGE_SIDE:
+    raise ValueError(f'{name}: {field}: expected a positive integer of at most {MAX_IMAGE_SIDE} (pixels; the '
+                     f'largest image side dexjax renders), got {value!r}')
+  return int(value)
 
 
 @struct.dataclass

@@ -24,13 +24,12 @@ Our reading (see docs/cameras.md):
 from __future__ import annotations
 
 import math
-import numbers
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
-from dexjax.render.camera import MAX_IMAGE_SIDE, Camera, Intrinsics, look_at
+from dexjax.render.camera import Camera, Intrinsics, check_image_side, look_at
 
 # (field name, unit, lower bound kind) of every sampled range, in sampling order.
 _RANGES = (
@@ -81,7 +80,7 @@ class CameraDistribution:
     for name, unit, kind in _RANGES:
       _check_range(name, getattr(self, name), unit, kind)
     for name in ('width', 'height'):
-      _check_size(name, getattr(self, name))
+      check_image_side('CameraDistribution', name, getattr(self, name))
     return self
 
 
@@ -112,13 +111,6 @@ def _check_range(name: str, value, unit: str, kind: str) -> None:
     ok = ok and low >= 0 and high < 90
   if not ok:
     raise ValueError(message)
-
-
-def _check_size(name: str, value) -> None:
-  """Raises ValueError unless ``value`` is a Python integer (not a bool) in [1, `MAX_IMAGE_SIDE`]."""
-  if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 < value <= MAX_IMAGE_SIDE:
-    raise ValueError(f'CameraDistribution: {name}: expected a positive integer of at most {MAX_IMAGE_SIDE} '
-                     f'(pixels; the largest image side dexjax renders), got {value!r}')
 
 
 def camera_from_spherical(center: jax.Array, r: jax.Array | float, theta: jax.Array | float,

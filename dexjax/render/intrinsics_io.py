@@ -12,8 +12,9 @@ Formats (see docs/cameras.md):
 
 Files ending in ``.yaml`` or ``.yml`` are parsed as YAML, anything else as JSON (by
 `dexjax.config.parse_yaml_documents` and `parse_json`: deep nesting and duplicate YAML keys are refused). We always
-write JSON. Width and height are at most `MAX_IMAGE_SIDE` pixels, focal lengths at most `MAX_FOCAL_LENGTH` pixels
-and the principal point lies in the image (0 <= cx <= width, 0 <= cy <= height).
+write JSON. Width and height are at most `MAX_IMAGE_SIDE` pixels (`dexjax.render.camera.check_image_side`), focal
+lengths at most `MAX_FOCAL_LENGTH` pixels and the principal point lies in the image (0 <= cx <= width,
+0 <= cy <= height).
 Errors name the file, the field and the expected value.
 """
 
@@ -31,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from dexjax.config import ConfigError, number_hint, parse_json, parse_yaml_documents
-from dexjax.render.camera import MAX_FOCAL_LENGTH, MAX_IMAGE_SIDE, Camera, Intrinsics
+from dexjax.render.camera import MAX_FOCAL_LENGTH, Camera, Intrinsics, check_image_side
 
 ROTATION_TOLERANCE = 1e-4  # max |R^T R - I| and |det R - 1| accepted for a stored rotation
 
@@ -71,15 +72,6 @@ def _number(name: str, field: str, value: Any, expected: str = 'a finite number'
   if not math.isfinite(x) or (ok is not None and not ok(x)):
     raise ValueError(message)
   return x
-
-
-def check_image_side(name: str, field: str, value: Any) -> int:
-  """``value`` as an int; raises ValueError naming ``name`` and ``field`` unless it is an integer (not a bool or a
-  float) in [1, `MAX_IMAGE_SIDE`] pixels."""
-  if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 < value <= MAX_IMAGE_SIDE:
-    raise ValueError(f'{name}: {field}: expected a positive integer of at most {MAX_IMAGE_SIDE} (pixels; the '
-                     f'largest image side dexjax renders), got {value!r}')
-  return int(value)
 
 
 def _field(name: str, data: dict[str, Any], *fields: str) -> tuple[str, Any]:
