@@ -35,7 +35,7 @@ from dexjax.objects.collision import HullSettings
 from dexjax.bench.judges import analytic_judge, physics_judge
 from dexjax.bench.picking_metrics import MotionModel, object_difficulty, summarize
 from dexjax.bench.protocol import Protocol
-from dexjax.config import plain_json
+from dexjax.config import parse_json, plain_json
 from dexjax.generate.config import GenerateConfig
 from dexjax.policy.presets import POLICY_NAMES, PRIVILEGED_POLICIES
 
@@ -212,8 +212,8 @@ def _trial_task(spec: BenchmarkSpec, log_path: str, cache_dir: str | None, appen
 def _read_json_object(path: Path) -> dict[str, Any] | None:
   """The JSON object in ``path``; None if it is unreadable, not UTF-8 JSON or not an object."""
   try:
-    data = json.loads(path.read_bytes().decode('utf-8'))
-  except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep
+    data = parse_json(path.read_bytes().decode('utf-8'), str(path))
+  except (OSError, ValueError):  # ConfigError (a ValueError): malformed, nested too deep, a key twice
     return None
   return data if isinstance(data, dict) else None
 
