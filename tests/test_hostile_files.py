@@ -136,6 +136,9 @@ def test_deeply_nested_run_records_and_shard_meta_are_unreadable(tmp_path):
   with pytest.raises(ShardError, match=r"field '__meta__': expected JSON, got line 1, column \d+: lists or mappings "
                                        'nested deeper'):
     read_shard(tmp_path / 'shard.npz')
+  np.savez(tmp_path / 'list.npz', __meta__=np.array('[1, 2]'))  # JSON, but not an object
+  with pytest.raises(ShardError, match=r"field '__meta__': expected a JSON object, got a list"):
+    read_shard(tmp_path / 'list.npz')
 
 
 def test_a_resumed_run_with_a_deeply_nested_config_record_is_refused(tmp_path):

@@ -246,6 +246,8 @@ def _parse_meta(path: Path, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     meta = parse_json(str(text.item()), _META_KEY, expected=None)  # nesting and duplicate keys refused too
   except ConfigError as err:
     raise _fail(path, _META_KEY, f"expected JSON, got {err.field + ': ' if err.field else ''}{err.problem}") from err
+  if not isinstance(meta, dict):
+    raise _fail(path, _META_KEY, f"expected a JSON object, got a {type(meta).__name__}")
   if meta.get("format_version") != FORMAT_VERSION:
     raise _fail(path, "format_version", f"expected {FORMAT_VERSION}, got {meta.get('format_version')}")
   return meta
