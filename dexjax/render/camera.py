@@ -79,7 +79,7 @@ class Camera:
   position: jax.Array
 
 
-def look_at(eye: jax.Array, target: jax.Array, up: jax.Array = jnp.array([0.0, 0.0, 1.0])) -> jax.Array:
+def look_at(eye: jax.Array, target: jax.Array, up: jax.Array | None = None) -> jax.Array:
   """(3, 3) world-from-camera rotation of a camera at ``eye`` (3,) looking at ``target`` (3,).
 
   The optical axis (z) points from ``eye`` to ``target``; the image's "up" (-y) is the projection of ``up``
@@ -87,6 +87,8 @@ def look_at(eye: jax.Array, target: jax.Array, up: jax.Array = jnp.array([0.0, 0
   (world +x if the axis is also close to y).
   """
   z = normalize(target - eye)
+  if up is None:  # not a default argument: building an array at import would compile a program
+    up = jnp.array([0.0, 0.0, 1.0], z.dtype)
   fallback = jnp.where(jnp.abs(z[1]) < 0.9, jnp.array([0.0, 1.0, 0.0], z.dtype),
                        jnp.array([1.0, 0.0, 0.0], z.dtype))
   up = jnp.where(jnp.abs(jnp.dot(normalize(up), z)) > 1.0 - 1e-6, fallback, up)
