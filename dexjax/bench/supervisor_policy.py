@@ -156,8 +156,7 @@ def policy_grasp_sets(config: Any, models: Any, cache_dir: Any = None, num_grasp
 def plan_privileged(policy: SupervisorPolicy, world: Any, key: jax.Array, observation: Observation, state: Any,
                     camera: Camera, segmentation: np.ndarray) -> GraspAction:
   """`SupervisorPolicy` on a `BinState` of ``world``: its true scene, masses, segmentation and slot ids."""
-  masses = np.array([world.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
-  return policy(key, observation, world.scene(state, loads=policy.loads), masses, camera, segmentation,
+  return policy(key, observation, world.scene(state, loads=policy.loads), world.masses(state), camera, segmentation,
                 scene_slot_ids(state.object_ids, state.mask))
 
 

@@ -187,12 +187,14 @@ class PickingWorld:
       if base is None:
         base = scenes[(False, False)] = heap_scene(self.models, state.object_ids, state.mask, state.poses,
                                                    state.friction)
-      mass = None
-      if known_mass:
-        mass = jnp.asarray([self.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], jnp.float32)
+      mass = jnp.asarray(self.masses(state)) if known_mass else None
       carried = jnp.asarray(self.loads(state)) if loads else None
       scenes[(known_mass, loads)] = base.replace(mass=mass, loads=carried)
     return scenes[(known_mass, loads)]
+
+  def masses(self, state: BinState) -> np.ndarray:
+    """(P,) float32 each slot's simulated mass, kg (1 in empty slots)."""
+    return np.array([self.bodies[i].mass if i >= 0 else 1.0 for i in state.object_ids.tolist()], np.float32)
 
   def loads(self, state: BinState) -> np.ndarray:
     """(P, 6) float32 the load on each slot's object from its neighbours at rest (force N, torque N m about its

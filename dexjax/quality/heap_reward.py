@@ -152,7 +152,7 @@ def scene_slot_ids(object_ids: Any, mask: Any) -> np.ndarray:
 
 
 def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses: Any, friction: Any,
-               mass: Any = None, loads: Any = None) -> HeapScene:
+               mass: Any = None) -> HeapScene:
   """The `HeapScene` of one heap of P slots from the available objects' models: slot i's model is
   ``models[object_ids[i]]`` (empty slots repeat the first object's; ignored by the reward).
 
@@ -161,7 +161,6 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
     object_ids: (P,) ints into ``models`` (anything where not ``mask``); mask: (P,) bool.
     poses: (P, 7) object-frame poses (xyz metres, wxyz); friction: (P,) Coulomb friction per slot.
     mass: None, or (P,) known mass per slot, kg (see `HeapScene`).
-    loads: None, or (P, 6) each slot's load from its neighbours, world frame (see `HeapScene`).
   """
   mask = np.asarray(mask, bool)
   slot_ids = scene_slot_ids(object_ids, mask)
@@ -169,9 +168,7 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
                    object_ids=jnp.arange(len(slot_ids), dtype=jnp.int32), mask=jnp.asarray(mask),
                    poses=jnp.asarray(poses, jnp.float32),
                    friction=jnp.asarray(np.where(mask, np.asarray(friction), 0.0), jnp.float32),
-                   mass=None if mass is None else jnp.asarray(np.where(mask, np.asarray(mass), 1.0), jnp.float32),
-                   loads=None if loads is None else jnp.asarray(np.where(mask[:, None], np.asarray(loads), 0.0),
-                                                                jnp.float32))
+                   mass=None if mass is None else jnp.asarray(np.where(mask, np.asarray(mass), 1.0), jnp.float32))
 
 
 def slot_distances(scene: HeapScene, points: jax.Array) -> jax.Array:
