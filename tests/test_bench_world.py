@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 
 import jax
@@ -237,3 +238,20 @@ def test_the_supervisor_empties_a_bin_of_boxes_under_both_judges(boxes):
                       protocol=Protocol(objects_per_trial=2), memory=FailureMemory(radius=0.01, attempts=5))
   assert records[-1]['stop'] == 'empty' and sum(r['physics'] for r in records) == 2
   assert all(r['analytic'] for r in records if r['physics']) and all(r['q'] > 0.5 for r in records)
+
+
+def test_the_supervisor_tries_its_best_effort_when_no_grasp_passes(boxes):
+  """With a reward threshold no probability exceeds (1.0), no grasp passes the supervisor's test: without the
+  fallback the trial stops at once with no grasp; with it the supervisor executes the grasps of highest true-mass
+  probability and empties the bin (a cube and a box, which the labels' reward counts as picked)."""
+  from dexjax.bench import supervisor_policy  # pylint: disable=g-import-not-at-top
+  policy = supervisor_policy(boxes)
+  params = policy.params.replace(reward=policy.params.reward.replace(threshold=1.0))
+  judges = {'analytic': analytic_judge(boxes)}
+  trial = functools.partial(run_trial, boxes, judges=judges, policy='supervisor', trial=0, advance_by='analytic',
+                            protocol=Protocol(objects_per_trial=2))
+  stopped = trial(dataclasses.replace(policy, params=params, fallback=False))
+  assert len(stopped) == 1 and stopped[0]['stop'] == 'no_grasp' and stopped[0]['gripper'] is None
+  tried = trial(dataclasses.replace(policy, params=params))
+  assert tried[-1]['stop'] == 'empty' and sum(r['analytic'] for r in tried) == 2
+  assert all(r['gripper'] is not None and 0.0 < r['q'] <= 1.0 for r in tried)

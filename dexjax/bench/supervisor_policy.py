@@ -20,8 +20,15 @@ highest robust quality over both grippers' candidates:
    bar until it slides off; ``loads=False`` drops it);
 3. the candidate whose smallest score of the three (the two rewards' robust probabilities, the set quality) is
    highest, over both grippers (ties broken by the true-mass probability, the set's quality, then the parallel
-   jaw first), or no grasp: a grasp the labels, the object's real weight and the robot's accelerations all call
-   robust.
+   jaw first): a grasp the labels, the object's real weight and the robot's accelerations all call robust;
+4. when no candidate passes (both rewards 1), the **best effort** (``fallback``, on by default): the candidate
+   that touches only its target without a collision in both rewards (it failed only on robustness) with the
+   highest true-mass robust probability, if that is above 0. The seed's protocol has no "no grasp": a policy
+   returns an action and the robot tries it, and a trial ends only when the bin is empty, after 75 attempts or
+   after 10 consecutive failures; a robot that stopped at the first bin whose visible objects are all hard
+   would leave the objects beneath them in the bin. A best-effort grasp's probability (its smallest score) is
+   at most the reward's threshold 0.5, so the records tell such attempts apart; ``fallback=False`` returns no
+   grasp instead (the trial stops, `dexjax.bench.trial`).
 
 It is the benchmark's reference: if it cannot pick under the physics judge, the simulated world or the labels are
 wrong, not the learning. Its records and figures are marked privileged (``SupervisorPolicy.privileged``).
@@ -42,7 +49,8 @@ from dexjax.generate.supervisor import (GraspSet, heap_grasp_sets, parallel_jaw_
                                         suction_supervisor_candidates)
 from dexjax.policy.actions import GraspAction, action_from_grasp
 from dexjax.policy.observation import Observation
-from dexjax.quality.heap_reward import HeapScene, parallel_jaw_heap_reward, scene_slot_ids, suction_heap_reward
+from dexjax.quality.heap_reward import (NONE, NOT_ROBUST, HeapScene, RewardRecord, parallel_jaw_heap_reward,
+                                        scene_slot_ids, suction_heap_reward)
 from dexjax.quality.robust import SUPERVISOR_SAMPLES
 from dexjax.render.camera import Camera
 from dexjax.sampling.image_grasps import parallel_jaw_grasp_3d, suction_grasp_3d
@@ -51,12 +59,21 @@ SUPERVISOR = 'supervisor'
 """The supervisor policy's name in `dexjax.policy.POLICY_NAMES` and the benchmark."""
 
 
-@functools.partial(jax.jit, static_argnames=('suction', 'num_scored'))
+def _only_robustness_failed(record: RewardRecord) -> jax.Array:
+  """(...) bool: the grasp touches only its target without a collision (its reward failed, if at all, on
+  robustness alone)."""
+  return (record.failure == NONE) | (record.failure == NOT_ROBUST)
+
+
+@functools.partial(jax.jit, static_argnames=('suction', 'num_scored', 'fallback'))
 def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax.Array, camera: Camera,
-                mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int):
-  """(image grasp, score, set quality, found) of one gripper's best grasp in the bin: the score is the smallest of
-  its robust probabilities in the bin with the labels' Gamma masses and with the objects' true ``masses`` (P,) kg,
-  and its set quality (Omega's, with gravity's direction drawn in a cone: the robot's accelerations)."""
+                mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int,
+                fallback: bool):
+  """(image grasp, score, rank) of one gripper's best grasp in the bin: the score is the smallest of its robust
+  probabilities in the bin with the labels' Gamma masses and with the objects' true ``masses`` (P,) kg, and its
+  set quality (Omega's, with gravity's direction drawn in a cone: the robot's accelerations). The rank orders
+  grasps across grippers: in [2, 3.01] for a grasp both rewards accept, in [0, 1.01] for a best effort
+  (``fallback``), -inf when there is none."""
   reward = params.reward.replace(num_samples=SUPERVISOR_SAMPLES)
   if suction:
     images, eligible = suction_supervisor_candidates(sets_pk, scene, params.bin, camera, mask, params.supervisor,
@@ -80,9 +97,13 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
   known = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene.replace(mass=masses))
   ok = jnp.isfinite(top) & (prior.reward == 1) & (known.reward == 1)
   robust = jnp.minimum(jnp.minimum(prior.robust_probability, known.robust_probability), top)
-  rank = jnp.where(ok, robust + 1e-3 * known.robust_probability + 1e-6 * top, -jnp.inf)
+  rank = jnp.where(ok, 2.0 + robust + 1e-2 * known.robust_probability + 1e-4 * top, -jnp.inf)
+  if fallback:
+    effort = (jnp.isfinite(top) & _only_robustness_failed(prior) & _only_robustness_failed(known)
+              & (known.robust_probability > 0))
+    rank = jnp.where(ok, rank, jnp.where(effort, known.robust_probability + 1e-2 * robust, -jnp.inf))
   best = jnp.argmax(rank)
-  return jax.tree.map(lambda a: a[best], chosen), robust[best], top[best], ok[best]
+  return jax.tree.map(lambda a: a[best], chosen), robust[best], rank[best]
 
 
 @dataclasses.dataclass
@@ -94,6 +115,7 @@ class SupervisorPolicy:
     sets: the (parallel-jaw, suction) `GraspSet` of the world's N objects, (N, K).
     num_scored: candidates per gripper scored with the reward in the bin (static).
     loads: the reward's target carries its neighbours' resting load (`PickingWorld.loads`).
+    fallback: when no candidate passes, the best effort (see the module doc) instead of no grasp.
     privileged: always True: the policy reads the true bin state, not only the image.
   """
 
@@ -101,12 +123,14 @@ class SupervisorPolicy:
   sets: tuple[GraspSet, GraspSet]
   num_scored: int = 32
   loads: bool = True
+  fallback: bool = True
   privileged: bool = True
 
   def __call__(self, key: jax.Array, observation: Observation, scene: HeapScene, masses: np.ndarray,
                camera: Camera, segmentation: np.ndarray, slot_ids: np.ndarray) -> GraspAction:
     """The best grasp in the bin, as the `GraspAction` of ``observation``'s image (``probability``: its score, the
-    smaller robust probability over M = 25 draws; ``valid`` False when no candidate is eligible).
+    smallest of its two robust probabilities over M = 25 draws and its set quality, at most 0.5 for a best
+    effort; ``valid`` False when there is no grasp).
 
     Args:
       key: key of the reward's draws.
@@ -121,15 +145,15 @@ class SupervisorPolicy:
     actions, ranks = [], []
     for suction, sets, k in zip((False, True), self.sets, jax.random.split(key)):
       sets_pk = heap_grasp_sets(sets, jnp.asarray(slot_ids, jnp.int32))
-      grasp, prob, quality, found = _best_grasp(k, sets_pk, scene, jnp.asarray(masses, jnp.float32), camera, mask,
-                                                observation.depth, self.params, suction, self.num_scored)
-      actions.append(action_from_grasp(observation, grasp, prob, found))
-      ranks.append(float(prob) + 1e-3 * float(quality) if bool(found) else -np.inf)
+      grasp, prob, rank = _best_grasp(k, sets_pk, scene, jnp.asarray(masses, jnp.float32), camera, mask,
+                                      observation.depth, self.params, suction, self.num_scored, self.fallback)
+      actions.append(action_from_grasp(observation, grasp, prob, jnp.isfinite(rank)))
+      ranks.append(float(rank))
     return jax.device_get(actions[int(np.argmax(ranks))])
 
 
 def supervisor_policy(world: Any, num_grasps: int = 400, num_scored: int = 32, max_checked: int = 256,
-                      loads: bool = True) -> SupervisorPolicy:
+                      loads: bool = True, fallback: bool = True) -> SupervisorPolicy:
   """The `SupervisorPolicy` of a `PickingWorld` (its objects' grasp sets computed or loaded from the world's cache).
 
   As a policy the supervisor samples ``num_grasps`` grasps per object and gripper (the dataset's supervisor:
@@ -141,7 +165,7 @@ def supervisor_policy(world: Any, num_grasps: int = 400, num_scored: int = 32, m
   params = world.params.replace(supervisor=world.params.supervisor.replace(boundary=0.0, threshold=0.0,
                                                                            max_checked=max_checked))
   sets = policy_grasp_sets(world.config, world.models, world.cache_dir, num_grasps)
-  return SupervisorPolicy(params=params, sets=sets, num_scored=num_scored, loads=loads)
+  return SupervisorPolicy(params=params, sets=sets, num_scored=num_scored, loads=loads, fallback=fallback)
 
 
 def policy_grasp_sets(config: Any, models: Any, cache_dir: Any = None, num_grasps: int = 400
