@@ -65,15 +65,15 @@ def _only_robustness_failed(record: RewardRecord) -> jax.Array:
   return (record.failure == NONE) | (record.failure == NOT_ROBUST)
 
 
-@functools.partial(jax.jit, static_argnames=('suction', 'num_scored', 'fallback'))
+@functools.partial(jax.jit, static_argnames=('suction', 'num_scored'))
 def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax.Array, camera: Camera,
                 mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int,
-                fallback: bool):
+                fallback: jax.Array):
   """(image grasp, score, rank) of one gripper's best grasp in the bin: the score is the smallest of its robust
   probabilities in the bin with the labels' Gamma masses and with the objects' true ``masses`` (P,) kg, and its
   set quality (Omega's, with gravity's direction drawn in a cone: the robot's accelerations). The rank orders
   grasps across grippers: in [2, 3.01] for a grasp both rewards accept, in [0, 1.01] for a best effort
-  (``fallback``), -inf when there is none."""
+  (``fallback``, a traced bool: one compilation serves both), -inf when there is none."""
   reward = params.reward.replace(num_samples=SUPERVISOR_SAMPLES)
   if suction:
     images, eligible = suction_supervisor_candidates(sets_pk, scene, params.bin, camera, mask, params.supervisor,
@@ -98,10 +98,9 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
   ok = jnp.isfinite(top) & (prior.reward == 1) & (known.reward == 1)
   robust = jnp.minimum(jnp.minimum(prior.robust_probability, known.robust_probability), top)
   rank = jnp.where(ok, 2.0 + robust + 1e-2 * known.robust_probability + 1e-4 * top, -jnp.inf)
-  if fallback:
-    effort = (jnp.isfinite(top) & _only_robustness_failed(prior) & _only_robustness_failed(known)
-              & (known.robust_probability > 0))
-    rank = jnp.where(ok, rank, jnp.where(effort, known.robust_probability + 1e-2 * robust, -jnp.inf))
+  effort = (fallback & jnp.isfinite(top) & _only_robustness_failed(prior) & _only_robustness_failed(known)
+            & (known.robust_probability > 0))
+  rank = jnp.where(ok, rank, jnp.where(effort, known.robust_probability + 1e-2 * robust, -jnp.inf))
   best = jnp.argmax(rank)
   return jax.tree.map(lambda a: a[best], chosen), robust[best], rank[best]
 
@@ -146,7 +145,8 @@ class SupervisorPolicy:
     for suction, sets, k in zip((False, True), self.sets, jax.random.split(key)):
       sets_pk = heap_grasp_sets(sets, jnp.asarray(slot_ids, jnp.int32))
       grasp, prob, rank = _best_grasp(k, sets_pk, scene, jnp.asarray(masses, jnp.float32), camera, mask,
-                                      observation.depth, self.params, suction, self.num_scored, self.fallback)
+                                      observation.depth, self.params, suction, self.num_scored,
+                                      jnp.asarray(self.fallback))
       actions.append(action_from_grasp(observation, grasp, prob, jnp.isfinite(rank)))
       ranks.append(float(rank))
     return jax.device_get(actions[int(np.argmax(ranks))])
