@@ -49,20 +49,14 @@ from dexjax.generate.supervisor import (GraspSet, heap_grasp_sets, parallel_jaw_
                                         suction_supervisor_candidates)
 from dexjax.policy.actions import GraspAction, action_from_grasp
 from dexjax.policy.observation import Observation
-from dexjax.quality.heap_reward import (NONE, NOT_ROBUST, HeapScene, RewardRecord, parallel_jaw_heap_reward,
-                                        scene_slot_ids, suction_heap_reward)
+from dexjax.quality.heap_reward import (HeapScene, decided_by_robustness, parallel_jaw_heap_reward, scene_slot_ids,
+                                        suction_heap_reward)
 from dexjax.quality.robust import SUPERVISOR_SAMPLES
 from dexjax.render.camera import Camera
 from dexjax.sampling.image_grasps import parallel_jaw_grasp_3d, suction_grasp_3d
 
 SUPERVISOR = 'supervisor'
 """The supervisor policy's name in `dexjax.policy.POLICY_NAMES` and the benchmark."""
-
-
-def _only_robustness_failed(record: RewardRecord) -> jax.Array:
-  """(...) bool: the grasp touches only its target without a collision (its reward failed, if at all, on
-  robustness alone)."""
-  return (record.failure == NONE) | (record.failure == NOT_ROBUST)
 
 
 @functools.partial(jax.jit, static_argnames=('suction', 'num_scored'))
@@ -97,10 +91,10 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
   known = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene.replace(mass=masses))
   ok = jnp.isfinite(top) & (prior.reward == 1) & (known.reward == 1)
   robust = jnp.minimum(jnp.minimum(prior.robust_probability, known.robust_probability), top)
-  rank = jnp.where(ok, 2.0 + robust + 1e-2 * known.robust_probability + 1e-4 * top, -jnp.inf)
-  effort = (fallback & jnp.isfinite(top) & _only_robustness_failed(prior) & _only_robustness_failed(known)
-            & (known.robust_probability > 0))
-  rank = jnp.where(ok, rank, jnp.where(effort, known.robust_probability + 1e-2 * robust, -jnp.inf))
+  effort = (fallback & jnp.isfinite(top) & decided_by_robustness(prior.failure)
+            & decided_by_robustness(known.failure) & (known.robust_probability > 0))
+  rank = jnp.where(ok, 2.0 + robust + 1e-2 * known.robust_probability + 1e-4 * top,
+                   jnp.where(effort, known.robust_probability + 1e-2 * robust, -jnp.inf))
   best = jnp.argmax(rank)
   return jax.tree.map(lambda a: a[best], chosen), robust[best], rank[best]
 
@@ -141,12 +135,12 @@ class SupervisorPolicy:
       slot_ids: (P,) model index of each slot (`scene_slot_ids`).
     """
     mask = jnp.asarray(segmentation, jnp.int32)
+    masses, fallback = jnp.asarray(masses, jnp.float32), jnp.asarray(self.fallback)
     actions, ranks = [], []
     for suction, sets, k in zip((False, True), self.sets, jax.random.split(key)):
       sets_pk = heap_grasp_sets(sets, jnp.asarray(slot_ids, jnp.int32))
-      grasp, prob, rank = _best_grasp(k, sets_pk, scene, jnp.asarray(masses, jnp.float32), camera, mask,
-                                      observation.depth, self.params, suction, self.num_scored,
-                                      jnp.asarray(self.fallback))
+      grasp, prob, rank = _best_grasp(k, sets_pk, scene, masses, camera, mask, observation.depth, self.params,
+                                      suction, self.num_scored, fallback)
       actions.append(action_from_grasp(observation, grasp, prob, jnp.isfinite(rank)))
       ranks.append(float(rank))
     return jax.device_get(actions[int(np.argmax(ranks))])

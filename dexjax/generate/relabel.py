@@ -49,8 +49,8 @@ from dexjax.generate.report import RowStats
 from dexjax.generate.run import check_run_dir, load_run_config, write_run_config
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.objects.sets import usable_objects
-from dexjax.quality.heap_reward import (NONE, NOT_ROBUST, HeapScene, RewardRecord, heap_scene, parallel_jaw_heap_reward,
-                                       suction_heap_reward)
+from dexjax.quality.heap_reward import (NONE, NOT_ROBUST, HeapScene, RewardRecord, decided_by_robustness, heap_scene,
+                                        parallel_jaw_heap_reward, suction_heap_reward)
 from dexjax.sim.heap import HeapDistribution, sample_friction
 
 
@@ -162,7 +162,7 @@ def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.
       out['robust_probability'][index] = probability[:len(index)]
       out['failure'][index] = failure[:len(index)]
   # The reward's last check, on the (possibly averaged) probability: `heap_reward` orders the checks so.
-  decided = np.isin(out['failure'], (NONE, NOT_ROBUST))
+  decided = decided_by_robustness(out['failure'])
   out['reward'] = decided & (out['robust_probability'] > params.reward.threshold)
   out['failure'] = np.where(out['reward'], NONE, np.where(decided, NOT_ROBUST, out['failure'])).astype(np.int32)
   return Relabelled(**out)

@@ -65,6 +65,12 @@ if TYPE_CHECKING:
 REWARD_FAILURES = ('none', 'collision_object', 'collision_bin', 'no_object', 'multiple_objects', 'not_robust')
 (NONE, COLLISION_OBJECT, COLLISION_BIN, NO_OBJECT, MULTIPLE_OBJECTS, NOT_ROBUST) = range(len(REWARD_FAILURES))
 
+
+def decided_by_robustness(failure: Any) -> Any:
+  """Same-shape bool (NumPy or JAX, as ``failure``): the reward's failure code is 'none' or 'not_robust', so the
+  robust probability alone decided it (the gripper touched only its target, without a collision)."""
+  return (failure == NONE) | (failure == NOT_ROBUST)
+
 _WORLD_DOWN = (0.0, 0.0, -1.0)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from dexjax.data.shards import GRIPPER_NAMES
 from dexjax.models.symmetry import symmetric_view
-from dexjax.quality.heap_reward import NONE, NOT_ROBUST
+from dexjax.quality.heap_reward import decided_by_robustness
 from dexjax.sampling.crops import model_crop
 
 
@@ -92,7 +92,7 @@ def soft_labels(rows: Mapping[str, np.ndarray]) -> np.ndarray:
   Rows without a ``failure`` field (hand-made batches) get their reward as the target."""
   if 'failure' not in rows:
     return (np.asarray(rows['reward']) == 1).astype(np.float32)
-  decided = np.isin(np.asarray(rows['failure']), (NONE, NOT_ROBUST))
+  decided = decided_by_robustness(np.asarray(rows['failure']))
   return np.where(decided, np.asarray(rows['robust_probability'], np.float32), 0.0).astype(np.float32)
 
 
