@@ -69,15 +69,15 @@ def test_dexnet4_yaml_spells_out_the_defaults():
 
 
 def test_fingerprints_are_known_answers():
-  """Known answers: the fingerprints of the defaults and SMALL with labels version 6 (2026-12-06: the suction
-  reward's bellows tipping test with the centre of mass's offset and the cup's ``bellows_max_angle``) and
+  """Known answers: the fingerprints of the defaults and SMALL with labels version 7 (2026-12-06: a wall between
+  the jaws' pads is a bin collision) and
   procedural objects version 4 (2026-12-06: level-1 flat faces at least the cup's width); every dataset of an
   older labels or objects version gets a new
   fingerprint, so none is resumed with other labels or other meshes. The speed-only settling fields never change
   a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == '3f57fdd5e33c25eb'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '3bbb94666a92c9f9'
+  assert fingerprint(awake(GenerateConfig())) == 'a83e368dd3608657'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'f5ebd9aee6464c2d'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))
@@ -427,7 +427,8 @@ def test_labels_match_the_recorded_rows(run):
   (the refined jaw collision test), at b5f2867, when level-1 cylinders became at least 4 cm across
   (procedural:L1/1 is one), at fd3cb0a, when level-1 flat faces became at least the cup's 2 cm wide
   (procedural:L1/2 is a rounded box), and at f61f1bb, labels version 6 (the bellows' range in the suction
-  tipping test: 1 of the 128 rewards changed). SMALL keeps ``settle.sleep`` off.
+  tipping test: 1 of the 128 rewards changed); labels version 7 (a wall between the jaws' pads) changed none of
+  them. SMALL keeps ``settle.sleep`` off.
   Recorded with ``scripts/record_generate_reference.py``; a render backend other than the recording's draws other
   depth images, so the comparison then needs that backend."""
   reference = np.load(pathlib.Path(__file__).parent / 'data' / 'generate_small_rows_f61f1bb.npz')

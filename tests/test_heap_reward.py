@@ -83,6 +83,16 @@ def _jaw_cases(models):
       # A cube against the +x wall: its +x finger (x in [20.4, 21.4] cm) is inside the wall (x in [20, 21] cm).
       ("wall", _scene(models, [(CUBE, (0.179, 0.0, 0.02), IDENTITY)]), _jaws((0.179, 0.0, 0.02)),
        "collision_bin", 0),
+      # The cube on another against the +x wall, the jaws opened to 7 cm across the wall: both fingers clear the
+      # cubes and the wall (the +x one outside the bin, x in [22.1, 23.1] cm), the palm passes over the wall (its
+      # underside 11 cm above the floor, the wall's top at 10 cm), but the +x pad would close on the wall.
+      ("across_wall", _scene(models, [(CUBE, (0.179, 0.0, 0.06), IDENTITY), (CUBE, (0.179, 0.0, 0.02), IDENTITY)]),
+       _jaws((0.186, 0.0, 0.06), width=0.07),
+       "collision_bin", 0),
+      # Opened to 7 cm beside the wall (the +x finger's outer face at x = 20 cm, the wall's face): nothing lies
+      # between the pads but the cube.
+      ("beside_wall", _scene(models, [(CUBE, (0.16, 0.0, 0.02), IDENTITY)]), _jaws((0.155, 0.0, 0.02), width=0.07),
+       "none", 0),
   ]
 
 
@@ -114,7 +124,7 @@ def test_centred_suction_on_flat_box_succeeds_and_empty_floor_has_no_object(mode
   assert _failure(sunk) == "collision_object"
 
 
-@pytest.mark.parametrize("case", range(4))
+@pytest.mark.parametrize("case", range(6))
 def test_parallel_jaw_heap_failures(models, case):
   name, scene, grasp, expected, target = _jaw_cases(models)[case]
   record = _reward(KEY, grasp, scene, BIN)

@@ -47,7 +47,10 @@ PARALLEL_JAW, SUCTION = 0, 1
 #: that it tips over on them (k < m g h, `dexjax.quality.grasp_quality.bellows_margin`): a bowl held from inside.
 #: 6: the tipping test has the centre of mass's offset from the bellows' axis and the bellows' range
 #: (k a >= m g (d cos a + h sin a), `bellows_margin`): a bowl held a few mm off its axis bends them to the stop.
-LABEL_VERSION = 6
+#: 7: a parallel-jaw grasp whose pads would close on a bin wall (the wall lies between them, `jaw_closing_box`:
+#: one finger outside the bin, the palm passing over the wall) is a bin collision; version 6 found the contacts on
+#: the object beyond the wall, and the physics judge's jaws closed on the wall (issue 42).
+LABEL_VERSION = 7
 
 
 @struct.dataclass

@@ -20,7 +20,8 @@ quality and the 3-D sampler):
 * the approach path: every solid swept back along -x by ``standoff`` (the gripper moves in from a pre-grasp
   pose ``standoff`` behind the grasp; the sweep of a box along its own x edges is a longer box);
 * the closing region (contact test, not collision): the space between the pads, y in [-width/2, width/2],
-  over the fingers' x and z extents, which the pads sweep when the jaws close.
+  over the fingers' x and z extents, which the pads sweep when the jaws close (`jaw_closing_box`: no bin wall
+  may lie in it, or the jaws close on the wall).
 
 `jaw_collides` is the single-object test of these solids against one `ObjectModel` (used by
 `dexjax.quality.parallel_jaw_quality` and `dexjax.sampling.sample_antipodal_grasps`): the same cell-centre
@@ -54,7 +55,7 @@ from dexjax.grippers import ParallelJawGripper
 
 __all__ = [
     'GripperGeometry', 'MAX_COLLISION_SAMPLES', 'MAX_DISC_RINGS', 'REFINE_DEPTHS', 'REFINED_SAMPLES',
-    'NEAREST_SAMPLES', 'check_collision_samples', 'jaw_solids', 'jaw_collision_points',
+    'NEAREST_SAMPLES', 'check_collision_samples', 'jaw_closing_box', 'jaw_solids', 'jaw_collision_points',
     'jaw_clearance', 'jaw_collision_samples', 'jaw_contact_points', 'jaw_corner_points', 'nearest_jaw_samples',
     'jaw_collides', 'suction_collision_points', 'suction_contact_points', 'suction_rim_points', 'to_world',
 ]
@@ -221,6 +222,15 @@ def jaw_solids(gripper: ParallelJawGripper, geometry: GripperGeometry,
                  jnp.asarray([palm_hi, 0.5 * g.palm_width, 0.5 * g.palm_height], jnp.float32),
                  palm_counts))
   return solids
+
+
+def jaw_closing_box(gripper: ParallelJawGripper, width: jax.Array) -> tuple[jax.Array, jax.Array]:
+  """(lo (3,), hi (3,)) float32 gripper-frame box the pads sweep as the jaws close from ``width`` (metres): x over
+  the fingers' length (not swept back: the jaws close at the grasp), y between the pads, z across the pads."""
+  g = gripper
+  half = 0.5 * jnp.asarray(width, jnp.float32)
+  return (jnp.stack([jnp.float32(g.tip_depth - g.finger_length), -half, jnp.float32(-0.5 * g.finger_width)]),
+          jnp.stack([jnp.float32(g.tip_depth), half, jnp.float32(0.5 * g.finger_width)]))
 
 
 def jaw_collision_samples(gripper: ParallelJawGripper, geometry: GripperGeometry,

@@ -51,7 +51,7 @@ from dexjax.geometry.transforms import quat_to_matrix
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp, parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.grasp_quality import QualityConfig
-from dexjax.quality.gripper_geometry import (jaw_clearance, jaw_collision_points, jaw_contact_points,
+from dexjax.quality.gripper_geometry import (jaw_clearance, jaw_closing_box, jaw_collision_points, jaw_contact_points,
                                              jaw_corner_points, jaw_solids, suction_collision_points,
                                              suction_contact_points, suction_rim_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
@@ -225,12 +225,15 @@ def boxes_overlap(centre_a: jax.Array, axes_a: jax.Array, half_a: jax.Array, cen
 
 def _jaw_wall_collision(pose: jax.Array, gripper: ParallelJawGripper, params: RewardParams, width: jax.Array,
                         bin_: Bin) -> jax.Array:
-  """() bool: a swept finger or the palm (boxes, `jaw_solids`) overlaps a bin wall shrunk by the tolerance."""
+  """() bool: a swept finger or the palm (boxes, `jaw_solids`), or the region the pads sweep as they close
+  (`jaw_closing_box`: a wall between the pads is what the jaws would close on), overlaps a bin wall shrunk by the
+  tolerance."""
   from dexjax.sim.scene import bin_boxes  # pylint: disable=g-import-not-at-top (avoids a quality <-> sim cycle)
   tol = params.quality.collision_tolerance
   walls = bin_boxes(bin_)[1:]
   hit = jnp.asarray(False)
-  for lo, hi, _ in jaw_solids(gripper, params.quality.geometry, width):
+  boxes = [(lo, hi) for lo, hi, _ in jaw_solids(gripper, params.quality.geometry, width)]
+  for lo, hi in boxes + [jaw_closing_box(gripper, width)]:
     centre = pose[:3, :3] @ (0.5 * (lo + hi)) + pose[:3, 3]
     for wall_centre, wall_half in walls:
       hit |= boxes_overlap(centre, pose[:3, :3], 0.5 * (hi - lo), jnp.asarray(wall_centre, jnp.float32),
