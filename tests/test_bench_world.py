@@ -100,7 +100,7 @@ from dexjax.bench.protocol import Protocol, stop_reason  # noqa: E402
 from dexjax.bench.judges import analytic_judge  # noqa: E402
 from dexjax.bench.trial import _bin_level, run_trial  # noqa: E402
 from dexjax.policy import action_from_grasp  # noqa: E402
-from dexjax.sampling.image_grasps import ImageSuctionGrasp  # noqa: E402
+from dexjax.sampling.image_grasps import ImageParallelJawGrasp, ImageSuctionGrasp  # noqa: E402
 
 
 def top_suction(key, obs):
@@ -220,6 +220,31 @@ def test_failure_memory_moves_a_policy_off_its_failed_grasp(world):
   assert remembered[0]['world_center'] == plain[0]['world_center']  # the first attempt has nothing to remember
   with pytest.raises(ValueError, match=r'FailureMemory.radius \(--failure-memory\): expected a number >= 0'):
     run_trial(world, edge_suction, judges, policy='edge', trial=2, protocol=protocol, memory=FailureMemory(-1.0))
+
+
+def deep_jaws(key, obs):
+  """A scripted policy that always fails the same way: parallel jaws across the first grasp pixel in raster order,
+  centred 3 cm below the surface seen there (the jaws go into the object), unless that pixel is masked out."""
+  del key
+  v, u = np.argwhere(np.asarray(obs.mask))[0]
+  grasp = ImageParallelJawGrasp(center=np.array([u, v], np.float32), angle=np.float32(0.0),
+                                depth=np.float32(np.asarray(obs.depth)[v, u] + 0.03), width=np.float32(0.05))
+  return action_from_grasp(obs, grasp, np.float32(0.9), True)
+
+
+def test_failure_memory_remembers_where_the_jaws_aimed_not_their_centre(world):
+  """The jaws' centre lies 3 cm below the surface their centre pixel shows, beyond a 1 cm memory of grasp centres;
+  the memory keeps the surface point (``aim_point``), so the jaws do not come back to it."""
+  from dexjax.bench import FailureMemory, repeated_attempts  # pylint: disable=g-import-not-at-top
+  judges = {'analytic': analytic_judge(world)}
+  protocol = Protocol(objects_per_trial=3, max_consecutive_failures=3)
+  plain = run_trial(world, deep_jaws, judges, policy='deep', trial=2, protocol=protocol)
+  assert not any(r['success'] for r in plain) and repeated_attempts(plain) == [False, True, True]
+  aim, centre = np.asarray(plain[0]['aim_point']), np.asarray(plain[0]['world_center'])
+  assert 0.025 < np.linalg.norm(aim - centre) < 0.035
+  remembered = run_trial(world, deep_jaws, judges, policy='deep', trial=2, protocol=protocol,
+                         memory=FailureMemory(radius=0.01, attempts=5))
+  assert not any(repeated_attempts(remembered))
 
 
 def test_the_supervisor_empties_a_bin_of_boxes_under_both_judges(boxes):

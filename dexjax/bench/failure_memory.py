@@ -4,8 +4,11 @@ A failed suction attempt often leaves the bin as it was, and a deterministic pol
 again until the trial ends on consecutive failures; a real robot's failed attempt nearly always moves the object.
 The benchmark therefore reports how many attempts repeat an earlier failure (`repeated_attempts`), and offers
 policies an optional memory (`FailureMemory`, off by default so that results compare with the seed's): for the
-next ``attempts`` attempts no grasp may be centred within ``radius`` of a failed grasp's centre (a 3-D distance, so
-an object that has since moved away, or a neighbour at another height, is not excluded). The memory is applied
+next ``attempts`` attempts no grasp may be centred within ``radius`` of a failed grasp's aim point (a 3-D distance,
+so an object that has since moved away, or a neighbour at another height, is not excluded). The aim point is the
+surface the policy saw at the grasp's centre pixel (`aim_point`): a suction grasp's contact, the top of what a
+parallel-jaw grasp closes on (its centre lies below that surface by the jaws' depth, often more than the radius,
+so a memory of grasp centres let the jaws repeat). The memory is applied
 to where grasps may be centred (the observation's mask; for the privileged supervisor, the segmentation it picks
 visible grasps from), so it works with every policy unchanged.
 """
@@ -51,11 +54,23 @@ class FailureMemory:
     return self
 
 
+def aim_point(depth: np.ndarray, camera: Camera, center: Sequence[float]) -> list[float] | None:
+  """The world point (3 floats, m) of a depth image (H, W, metres) at the pixel nearest a grasp centre (u, v), or
+  None when that pixel is off the image or its depth is invalid."""
+  col, row = (int(np.floor(float(c) + 0.5)) for c in center)
+  h, w = np.shape(depth)
+  if not (0 <= row < h and 0 <= col < w):
+    return None
+  point = np.asarray(deproject(camera, np.asarray(depth, np.float32)), np.float64)[row, col]
+  return point.tolist() if np.all(np.isfinite(point)) else None
+
+
 def remembered_failures(records: Sequence[Mapping[str, Any]], memory: FailureMemory) -> np.ndarray:
-  """(K, 3) world grasp centres of the failed attempts among the last ``memory.attempts`` records of a trial."""
+  """(K, 3) world aim points of the failed attempts among the last ``memory.attempts`` records of a trial (their
+  grasp centres for records without one)."""
   recent = records[-memory.attempts:] if memory.enabled else []
-  return np.array([r['world_center'] for r in recent if not r['success'] and r.get('world_center') is not None],
-                  np.float64).reshape(-1, 3)
+  points = [r.get('aim_point') or r.get('world_center') for r in recent if not r['success']]
+  return np.array([p for p in points if p is not None], np.float64).reshape(-1, 3)
 
 
 def excluded_pixels(depth: np.ndarray, camera: Camera, centres: np.ndarray, radius: float) -> np.ndarray:
@@ -87,4 +102,4 @@ def repeated_attempts(records: Iterable[Mapping[str, Any]], radius: float = REPE
   return out
 
 
-__all__ = ['FailureMemory', 'REPEAT_RADIUS', 'excluded_pixels', 'remembered_failures', 'repeated_attempts']
+__all__ = ['FailureMemory', 'REPEAT_RADIUS', 'aim_point', 'excluded_pixels', 'remembered_failures', 'repeated_attempts']

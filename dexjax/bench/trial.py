@@ -25,7 +25,7 @@ import numpy as np
 
 from dexjax.bench.analytic_judge import world_grasp
 from dexjax.bench.attempt_log import append_attempt
-from dexjax.bench.failure_memory import FailureMemory, excluded_pixels, remembered_failures
+from dexjax.bench.failure_memory import FailureMemory, aim_point, excluded_pixels, remembered_failures
 from dexjax.bench.judges import Judge, Verdict
 from dexjax.bench.picking_metrics import MotionModel
 from dexjax.bench.protocol import Protocol, stop_reason
@@ -173,6 +173,7 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
     stop = stop_reason(state.count, attempt, failures, protocol) or (NO_GRASP if action is None else None)
     record = {'policy': policy, 'trial': trial, 'attempt': attempt - 1, **_action_fields(action),
               'world_center': None if action is None else np.asarray(world_grasp(action, camera).center).tolist(),
+              'aim_point': None if action is None else aim_point(depth, camera, np.asarray(action.center)),
               'objects_at_start': start_count,
               'judge': advance_by, 'success': chosen.success, 'reason': chosen.reason,
               'verdicts': {n: {'success': v.success, 'reason': v.reason, 'target_slot': v.target_slot, **v.detail}
