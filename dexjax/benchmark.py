@@ -3,7 +3,8 @@
   python -m dexjax.benchmark --policy ambidextrous [--policy suction_heuristic ...] --objects SOURCE ...
       --out DIR [--per-trial 25] [--trials 5] [--judge physics|analytic] [--model pretrained|RUN_DIR]
       [--max-attempts 75] [--max-failures 10] [--config FILE] [--camera-config FILE] [--no-noise]
-      [--known-mass] [--supervisor-without-loads] [--supervisor-without-fallback] [--cem seed|gqcnn] [--seed S]
+      [--known-mass] [--supervisor-without-loads] [--supervisor-without-fallback]
+      [--supervisor-without-lift-first] [--cem seed|gqcnn] [--seed S]
       [--failure-memory R [--memory-attempts N]] [--shake]
       [--push] [--workers N | --ray [--ray-address ADDR]] [--cache-dir DIR] [--no-figures] [--json]
 
@@ -71,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--supervisor-without-fallback', action='store_false', dest='supervisor_fallback',
                  help='the supervisor returns no grasp (the trial stops) when no grasp passes its test, instead of '
                       'executing its best effort (default: best effort; docs/benchmark.md)')
+  p.add_argument('--supervisor-without-lift-first', action='store_false', dest='supervisor_lift_first',
+                 help='the supervisor ranks the grasps that pass its test by their scores alone, instead of taking '
+                      'those on objects that rise straight out of the heap first (default: first; docs/benchmark.md)')
   p.add_argument('--cem', choices=('seed', 'gqcnn'), default='seed', help='CEM preset of the learned policies')
   p.add_argument('--seed', type=int, default=0, help='benchmark seed: bins, cameras and keys (default 0)')
   p.add_argument('--failure-memory', type=float, default=0.0, metavar='R',
@@ -159,6 +163,7 @@ def main(argv: list[str] | None = None) -> int:
                                          max_attempts=args.max_attempts, max_consecutive_failures=args.max_failures),
                        judge=args.judge, model=args.model, cem=args.cem, seed=args.seed, known_mass=args.known_mass,
                        supervisor_loads=args.supervisor_loads, supervisor_fallback=args.supervisor_fallback,
+                       supervisor_lift_first=args.supervisor_lift_first,
                        physics=physics, memory=FailureMemory(args.failure_memory, args.memory_attempts))
   results = run_benchmark(spec, args.out, workers=args.workers, backend='ray' if args.ray else None,
                           ray_address=args.ray_address, cache_dir=args.cache_dir, progress=not args.json,

@@ -283,3 +283,24 @@ def test_the_supervisor_tries_its_best_effort_when_no_grasp_passes(boxes):
   tried = trial(dataclasses.replace(policy, params=params))
   assert tried[-1]['stop'] == 'empty' and sum(r['analytic'] for r in tried) == 2
   assert all(r['gripper'] is not None and 0.0 <= r['q'] <= 0.5 for r in tried)
+
+
+def test_the_supervisor_takes_an_object_clear_to_lift_first(boxes, monkeypatch):
+  """Among grasps that pass, the supervisor takes those on an object that rises straight out of the heap first:
+  told that only the object it did not choose (of a cube and a box) is clear to lift, it chooses that one; told
+  that only its own choice is, it keeps it; with ``lift_first`` off, what it is told does not matter."""
+  import importlib  # pylint: disable=g-import-not-at-top
+  from dexjax.bench import supervisor_policy  # pylint: disable=g-import-not-at-top
+  module = importlib.import_module('dexjax.bench.supervisor_policy')
+  policy = supervisor_policy(boxes)
+  judges = {'analytic': analytic_judge(boxes)}
+  target = lambda p: run_trial(boxes, p, judges, policy='supervisor', trial=0, advance_by='analytic',
+                               protocol=Protocol(objects_per_trial=2, max_attempts=1))[0]['verdicts']['analytic'][
+                                   'target_slot']
+  chosen = target(policy)
+  assert chosen in (0, 1)
+  other = 1 - chosen
+  for clear, lift_first, expected in ((other, True, other), (chosen, True, chosen), (other, False, chosen)):
+    only = lambda scene, slot=clear: scene.mask & (jax.numpy.arange(scene.mask.shape[0]) == slot)
+    monkeypatch.setattr(module, '_slots_clear_to_lift', only)
+    assert target(dataclasses.replace(policy, lift_first=lift_first)) == expected, (clear, lift_first)

@@ -76,6 +76,8 @@ class BenchmarkSpec:
       (`dexjax.bench.SupervisorPolicy.loads`; on by default).
     supervisor_fallback: the supervisor executes its best effort when no grasp passes its test instead of
       stopping the trial (`dexjax.bench.SupervisorPolicy.fallback`; on by default).
+    supervisor_lift_first: among the grasps that pass, the supervisor takes those on objects that rise straight
+      out of the heap first (`dexjax.bench.SupervisorPolicy.lift_first`; on by default).
     physics: the physics judge's settings; its robot model (``physics.path.motion``) also times the attempts
       for picks per hour.
     memory: the policies' memory of failed grasps (`FailureMemory`; off by default, as the seed's protocol).
@@ -93,6 +95,7 @@ class BenchmarkSpec:
   known_mass: bool = False
   supervisor_loads: bool = True
   supervisor_fallback: bool = True
+  supervisor_lift_first: bool = True
   physics: PhysicsSettings = PhysicsSettings()
   memory: FailureMemory = FailureMemory()
   grip_decomposition: HullSettings = BENCHMARK_HULLS
@@ -126,7 +129,7 @@ class BenchmarkSpec:
     return {'policies': list(self.policies), 'objects': list(self.config.objects.sources),
             'protocol': dataclasses.asdict(self.protocol), 'judge': self.judge, 'model': model, 'cem': self.cem,
             'seed': self.seed, 'known_mass': self.known_mass, 'supervisor_loads': self.supervisor_loads,
-            'supervisor_fallback': self.supervisor_fallback,
+            'supervisor_fallback': self.supervisor_fallback, 'supervisor_lift_first': self.supervisor_lift_first,
             'physics': plain_json(dataclasses.asdict(self.physics)),
             'memory': dataclasses.asdict(self.memory),
             'grip_decomposition': dataclasses.asdict(self.grip_decomposition),
@@ -176,7 +179,8 @@ def _worker_state(spec: BenchmarkSpec, cache_dir: str | None) -> dict[str, Any]:
       policy = make_policy(name, models if uses_models(name) else {}, cem=spec.cem, world=world)
       privileged = getattr(policy, 'privileged', False)  # the supervisor plans on the true bin (run_trial)
       if privileged:
-        policy = dataclasses.replace(policy, loads=spec.supervisor_loads, fallback=spec.supervisor_fallback)
+        policy = dataclasses.replace(policy, loads=spec.supervisor_loads, fallback=spec.supervisor_fallback,
+                                     lift_first=spec.supervisor_lift_first)
       planners[name] = policy if privileged else functools.partial(lambda key, obs, p: plan(key, obs, p), p=policy)
     judges = {'analytic': analytic_judge(world, known_mass=spec.known_mass),
               'physics': physics_judge(world, spec.physics)}

@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from dexjax.bench.lift_clearance import slots_clear_to_lift
 from dexjax.generate.labels import LabelParams
 from dexjax.generate.supervisor import (GraspSet, heap_grasp_sets, parallel_jaw_supervisor_candidates,
                                         suction_supervisor_candidates)
@@ -58,16 +59,19 @@ from dexjax.sampling.image_grasps import parallel_jaw_grasp_3d, suction_grasp_3d
 SUPERVISOR = 'supervisor'
 """The supervisor policy's name in `dexjax.policy.POLICY_NAMES` and the benchmark."""
 
+_slots_clear_to_lift = jax.jit(slots_clear_to_lift)
+
 
 @functools.partial(jax.jit, static_argnames=('suction', 'num_scored'))
 def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax.Array, camera: Camera,
                 mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int,
-                fallback: jax.Array):
+                fallback: jax.Array, clear: jax.Array):
   """(image grasp, score, rank) of one gripper's best grasp in the bin: the score is the smallest of its robust
   probabilities in the bin with the labels' Gamma masses and with the objects' true ``masses`` (P,) kg, and its
   set quality (Omega's, with gravity's direction drawn in a cone: the robot's accelerations). The rank orders
-  grasps across grippers: in [2, 3.01] for a grasp both rewards accept, in [0, 1.01] for a best effort
-  (``fallback``, a traced bool: one compilation serves both), -inf when there is none."""
+  grasps across grippers: in [4, 5.01] for a grasp both rewards accept on an object ``clear`` (P,) bool to lift, in
+  [2, 3.01] for one both accept on another object, in [0, 1.01] for a best effort (``fallback``, a traced bool: one
+  compilation serves both), -inf when there is none."""
   reward = params.reward.replace(num_samples=SUPERVISOR_SAMPLES)
   if suction:
     images, eligible = suction_supervisor_candidates(sets_pk, scene, params.bin, camera, mask, params.supervisor,
@@ -93,7 +97,8 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
   robust = jnp.minimum(jnp.minimum(prior.robust_probability, known.robust_probability), top)
   effort = (fallback & jnp.isfinite(top) & decided_by_robustness(prior.failure)
             & decided_by_robustness(known.failure) & (known.robust_probability > 0))
-  rank = jnp.where(ok, 2.0 + robust + 1e-2 * known.robust_probability + 1e-4 * top,
+  first = 2.0 * clear[jnp.maximum(known.target_slot, 0)]
+  rank = jnp.where(ok, 2.0 + first + robust + 1e-2 * known.robust_probability + 1e-4 * top,
                    jnp.where(effort, known.robust_probability + 1e-2 * robust, -jnp.inf))
   best = jnp.argmax(rank)
   return jax.tree.map(lambda a: a[best], chosen), robust[best], rank[best]
@@ -109,6 +114,8 @@ class SupervisorPolicy:
     num_scored: candidates per gripper scored with the reward in the bin (static).
     loads: the reward's target carries its neighbours' resting load (`PickingWorld.loads`).
     fallback: when no candidate passes, the best effort (see the module doc) instead of no grasp.
+    lift_first: among the grasps that pass, those on an object that rises straight out of the heap without
+      entering another (`dexjax.bench.lift_clearance`) first.
     privileged: always True: the policy reads the true bin state, not only the image.
   """
 
@@ -117,6 +124,7 @@ class SupervisorPolicy:
   num_scored: int = 32
   loads: bool = True
   fallback: bool = True
+  lift_first: bool = True
   privileged: bool = True
 
   def __call__(self, key: jax.Array, observation: Observation, scene: HeapScene, masses: np.ndarray,
@@ -136,18 +144,19 @@ class SupervisorPolicy:
     """
     mask = jnp.asarray(segmentation, jnp.int32)
     masses, fallback = jnp.asarray(masses, jnp.float32), jnp.asarray(self.fallback)
+    clear = _slots_clear_to_lift(scene) & self.lift_first
     actions, ranks = [], []
     for suction, sets, k in zip((False, True), self.sets, jax.random.split(key)):
       sets_pk = heap_grasp_sets(sets, jnp.asarray(slot_ids, jnp.int32))
       grasp, prob, rank = _best_grasp(k, sets_pk, scene, masses, camera, mask, observation.depth, self.params,
-                                      suction, self.num_scored, fallback)
+                                      suction, self.num_scored, fallback, clear)
       actions.append(action_from_grasp(observation, grasp, prob, jnp.isfinite(rank)))
       ranks.append(float(rank))
     return jax.device_get(actions[int(np.argmax(ranks))])
 
 
 def supervisor_policy(world: Any, num_grasps: int = 400, num_scored: int = 32, max_checked: int = 256,
-                      loads: bool = True, fallback: bool = True) -> SupervisorPolicy:
+                      loads: bool = True, fallback: bool = True, lift_first: bool = True) -> SupervisorPolicy:
   """The `SupervisorPolicy` of a `PickingWorld` (its objects' grasp sets computed or loaded from the world's cache).
 
   As a policy the supervisor samples ``num_grasps`` grasps per object and gripper (the dataset's supervisor:
@@ -159,7 +168,8 @@ def supervisor_policy(world: Any, num_grasps: int = 400, num_scored: int = 32, m
   params = world.params.replace(supervisor=world.params.supervisor.replace(boundary=0.0, threshold=0.0,
                                                                            max_checked=max_checked))
   sets = policy_grasp_sets(world.config, world.models, world.cache_dir, num_grasps)
-  return SupervisorPolicy(params=params, sets=sets, num_scored=num_scored, loads=loads, fallback=fallback)
+  return SupervisorPolicy(params=params, sets=sets, num_scored=num_scored, loads=loads, fallback=fallback,
+                          lift_first=lift_first)
 
 
 def policy_grasp_sets(config: Any, models: Any, cache_dir: Any = None, num_grasps: int = 400
