@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from dexjax.render.camera import Camera, deproject
+from dexjax.render.camera import Camera, camera_to_world, deproject
+from dexjax.sampling.image_grasps import camera_point
 
 REPEAT_RADIUS = 0.01
 """An attempt repeats an earlier failed one when it uses the same gripper and its grasp centre lies within this
@@ -61,8 +62,11 @@ def aim_point(depth: np.ndarray, camera: Camera, center: Sequence[float]) -> lis
   h, w = np.shape(depth)
   if not (0 <= row < h and 0 <= col < w):
     return None
-  point = np.asarray(deproject(camera, np.asarray(depth, np.float32)), np.float64)[row, col]
-  return point.tolist() if np.all(np.isfinite(point)) else None
+  z = float(depth[row, col])
+  if not (math.isfinite(z) and z > 0.0):
+    return None
+  return np.asarray(camera_to_world(camera, camera_point(camera, np.array([col, row], np.float32), np.float32(z))),
+                    np.float64).tolist()
 
 
 def remembered_failures(records: Sequence[Mapping[str, Any]], memory: FailureMemory) -> np.ndarray:

@@ -144,7 +144,7 @@ class SupervisorPolicy:
     """
     mask = jnp.asarray(segmentation, jnp.int32)
     masses, fallback = jnp.asarray(masses, jnp.float32), jnp.asarray(self.fallback)
-    clear = _slots_clear_to_lift(scene) & self.lift_first
+    clear = _slots_clear_to_lift(scene) if self.lift_first else jnp.zeros_like(scene.mask)
     actions, ranks = [], []
     for suction, sets, k in zip((False, True), self.sets, jax.random.split(key)):
       sets_pk = heap_grasp_sets(sets, jnp.asarray(slot_ids, jnp.int32))
