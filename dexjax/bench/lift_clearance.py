@@ -19,9 +19,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from dexjax.geometry.object_model import select_model
 from dexjax.geometry.transforms import quat_to_matrix
-from dexjax.quality.heap_reward import HeapScene, slot_distances
+from dexjax.quality.heap_reward import HeapScene, slot_distances, slot_model
 
 LIFT_HEIGHT = 0.1
 """Raise tested, m: the bin's walls' height (an object that clears it is out of the heap)."""
@@ -41,8 +40,7 @@ def lift_clearance(scene: HeapScene, slot: jax.Array, height: float = LIFT_HEIGH
   ``slot`` (() int) before one of its surface samples enters another object of ``scene`` by more than
   ``tolerance`` (m); ``height`` when none does, 0 when the first step is blocked. ``height``, ``step`` and
   ``num_points`` are static. Batch over slots with `jax.vmap`."""
-  ids = jnp.clip(scene.object_ids, 0, scene.models.sdf.shape[0] - 1)
-  model = select_model(scene.models, ids[slot])
+  model = slot_model(scene, slot)
   pose = scene.poses[slot]
   points = model.surface_points[:num_points] @ quat_to_matrix(pose[3:], xp=jnp).T + pose[:3]
   others = jnp.arange(scene.mask.shape[0]) != slot

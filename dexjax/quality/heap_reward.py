@@ -288,8 +288,9 @@ def _record(hit_object, hit_bin, contacted, target, probability, threshold) -> R
                       target_slot=target, num_contacts=count, failure=failure)
 
 
-def _target_model(scene: HeapScene, target: jax.Array) -> ObjectModel:
-  """The `ObjectModel` of the object in slot ``target`` (slot 0's when ``target`` is -1)."""
+def slot_model(scene: HeapScene, target: jax.Array) -> ObjectModel:
+  """The `ObjectModel` of the object in slot ``target`` (() int; slot 0's when ``target`` is -1), read in place
+  from the scene's stacked grids (`dexjax.geometry.select_model`)."""
   index = jnp.clip(scene.object_ids[jnp.maximum(target, 0)], 0, scene.models.sdf.shape[0] - 1)
   return select_model(scene.models, index)
 
@@ -381,7 +382,7 @@ def parallel_jaw_heap_reward(key: jax.Array, grasp: ParallelJawGrasp, scene: Hea
   local = grasp.replace(center=center, axis=dirs[0], approach=dirs[1])
   base = parallel_jaw_perturbations() if perturbations is None else perturbations
   pert = _state_perturbations(base, rot, scene, target, params.num_samples)
-  robust = robust_parallel_jaw_quality(key, _target_model(scene, target), local, gripper, pert, params.quality,
+  robust = robust_parallel_jaw_quality(key, slot_model(scene, target), local, gripper, pert, params.quality,
                                        _target_load(scene, rot, target))
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
@@ -403,7 +404,7 @@ def suction_heap_reward(key: jax.Array, grasp: SuctionGrasp, scene: HeapScene, b
   local = grasp.replace(center=center, approach=dirs[0])
   base = suction_perturbations() if perturbations is None else perturbations
   pert = _state_perturbations(base, rot, scene, target, params.num_samples)
-  robust = robust_suction_quality(key, _target_model(scene, target), local, gripper, pert, params.quality,
+  robust = robust_suction_quality(key, slot_model(scene, target), local, gripper, pert, params.quality,
                                   _target_load(scene, rot, target))
   return _record(hit_object, hit_bin, contacted, target, robust.probability, params.threshold)
 
