@@ -157,25 +157,24 @@ def optimize_grasp(key: jax.Array, model: ObjectModel, grasp: ParallelJawGrasp |
   value_and_grad = jax.value_and_grad(lambda params, k: objective(k, current(params)))
 
   def step(carry, k):
+    # Step ``steps`` only scores the final iterate (its update is dropped): one compiled copy of the objective
+    # serves every step and the final value.
     params, opt_state, best_params, best_value = carry
     value, grads = value_and_grad(params, jax.random.fold_in(key, k))
     better = value > best_value
     best_params = jax.tree.map(lambda b, p: jnp.where(better, p, b), best_params, params)
     best_value = jnp.where(better, value, best_value)
-    updates, opt_state = optimizer.update(jax.tree.map(jnp.negative, grads), opt_state, params)
-    params = project(optax.apply_updates(params, updates))
-    return (params, opt_state, best_params, best_value), value
+    updates, new_state = optimizer.update(jax.tree.map(jnp.negative, grads), opt_state, params)
+    last = k == steps
+    params = jax.tree.map(lambda o, n: jnp.where(last, o, n), params, project(optax.apply_updates(params, updates)))
+    return (params, new_state, best_params, best_value), value
 
   params = {'translation': jnp.zeros(3, jnp.float32), 'rotation': jnp.zeros(3, jnp.float32)}
   init = (params, optimizer.init(params), params, jnp.float32(-1.0))
-  (params, _, best_params, best_value), values = jax.lax.scan(step, init, jnp.arange(steps))
+  (params, _, best_params, best_value), values = jax.lax.scan(step, init, jnp.arange(steps + 1))
   final = current(params)
-  final_value = objective(jax.random.fold_in(key, steps), final)
-  better = final_value > best_value
-  best_params = jax.tree.map(lambda b, p: jnp.where(better, p, b), best_params, params)
   return AscentResult(grasp=_guarded(key, grasp, final, steps, settings, model, gripper, perturbations, config),
-                      best=current(best_params), best_value=jnp.maximum(best_value, final_value),
-                      values=jnp.concatenate([values, final_value[None]]))
+                      best=current(best_params), best_value=best_value, values=values)
 
 
 def _guarded(key, start, final, steps, settings, model, gripper, perturbations, config):
@@ -186,8 +185,9 @@ def _guarded(key, start, final, steps, settings, model, gripper, perturbations, 
   guard = _objective(model, gripper, perturbations.replace(num_samples=settings.guard_samples), config,
                      settings.smoothing)
   k = jax.random.fold_in(key, steps + 1)
-  keep = guard(k, final) >= guard(k, start)
-  return jax.tree.map(lambda f, s: jnp.where(keep, f, s), final, start)
+  pair = jax.tree.map(lambda f, s: jnp.stack([f, s]), final, start)
+  final_value, start_value = jax.vmap(guard, in_axes=(None, 0))(k, pair)  # one compiled copy for both
+  return jax.tree.map(lambda f, s: jnp.where(final_value >= start_value, f, s), final, start)
 
 
 __all__ = ['AscentResult', 'AscentSettings', 'move_grasp', 'optimize_grasp']
