@@ -69,15 +69,15 @@ def test_dexnet4_yaml_spells_out_the_defaults():
 
 
 def test_fingerprints_are_known_answers():
-  """Known answers: the fingerprints of the defaults and SMALL with labels version 7 (2026-12-06: a wall between
-  the jaws' pads is a bin collision) and
+  """Known answers: the fingerprints of the defaults and SMALL with labels version 8 (2026-12-07: each object's
+  mass drawn about its own) and
   procedural objects version 4 (2026-12-06: level-1 flat faces at least the cup's width); every dataset of an
   older labels or objects version gets a new
   fingerprint, so none is resumed with other labels or other meshes. The speed-only settling fields never change
   a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == 'a83e368dd3608657'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'f5ebd9aee6464c2d'
+  assert fingerprint(awake(GenerateConfig())) == '4b0c79adcfc4b212'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '6dcd5d5518fadc62'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))
@@ -194,6 +194,12 @@ def test_run_writes_every_shard_with_valid_rows(run):
     for heap in np.unique(images['heap_id']):
       same = images['heap_id'] == heap
       assert np.all(friction[same] == friction[same][0])
+    # Each object's simulated mass (the labels' law centres on it): its object's, 0 in empty slots.
+    mass = images['object_mass']
+    assert np.all(mass[~occupied] == 0) and np.all((mass[occupied] >= 0.01) & (mass[occupied] <= 2.0))
+    by_object = {}
+    for i, m in zip(images['object_ids'][occupied], mass[occupied]):
+      assert by_object.setdefault(int(i), m) == m
     # The 3-D pose sits at the image grasp: its origin projects to the centre pixel at the grasp depth.
     k = images['camera_intrinsics'][rows['image_index']]
     rot, pos = images['camera_rotation'][rows['image_index']], images['camera_translation'][rows['image_index']]
@@ -298,6 +304,7 @@ def test_supervisor_collision_tests_on_a_uniform_subset(run):
     ids, mask = images['object_ids'][0], images['object_ids'][0] >= 0
     scene, _, suction_sets = generator._heap_scene(ids, mask, images['object_poses'][0],  # pylint: disable=protected-access
                                                    images['object_friction'][0])
+    assert np.allclose(np.asarray(scene.mass)[mask], images['object_mass'][0][mask])
   fx, fy, cx, cy = images['camera_intrinsics'][0]
   camera = Camera(intrinsics=Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=200, height=200),
                   rotation=jnp.asarray(images['camera_rotation'][0]),

@@ -96,6 +96,7 @@ def _shard(tmp_path, rows, num_images=1):
     "object_ids": np.zeros((num_images, 1), np.int32),
     "object_poses": np.zeros((num_images, 1, 7), np.float32),
     "object_names": np.full((num_images, 1), "box"), "object_friction": np.full((num_images, 1), 0.8, np.float32),
+    "object_mass": np.full((num_images, 1), 0.2, np.float32),
   }
   path = tmp_path / "shard-000000.npz"
   write_shard(path, images, rows, {"config_fingerprint": "f", "seed": 0, "index": 0})

@@ -15,7 +15,7 @@ from dexjax.geometry import sdf_value
 from dexjax.grasps import ParallelJawGrasp, SuctionGrasp
 from dexjax.grippers import ParallelJawGripper
 from dexjax.quality import (Conditions, parallel_jaw_perturbations, parallel_jaw_quality, robust_parallel_jaw_quality,
-                            sample_conditions, with_known_friction)
+                            sample_conditions, with_known_friction, with_object_mass)
 from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, heap_grasp_reward, slot_distances,
                                         stack_models)
 from dexjax.sim.heap import Bin
@@ -247,6 +247,7 @@ def test_a_neighbours_load_weighs_like_extra_mass_in_the_objects_frame(models):
                                                                   scene), BIN)
   from dexjax.quality.grasp_quality import QualityConfig
   assert QualityConfig().gravity_acceleration == pytest.approx(g, abs=1e-3)
+  base = base.replace(mass_known=True)
   loaded, heavy = batch(base.replace(mass=mass(0.1), loads=loads)), batch(base.replace(mass=mass(0.4), loads=loads * 0))
   light = batch(base.replace(mass=mass(0.1), loads=loads * 0))
   np.testing.assert_allclose(np.asarray(loaded.robust_probability), np.asarray(heavy.robust_probability), atol=1e-6)
@@ -254,6 +255,33 @@ def test_a_neighbours_load_weighs_like_extra_mass_in_the_objects_frame(models):
   # The same load pushing up (a support, which `resting_loads` never reports) would lighten it instead.
   lifted = batch(base.replace(mass=mass(0.4), loads=-loads))
   np.testing.assert_allclose(np.asarray(lifted.robust_probability), np.asarray(light.robust_probability), atol=1e-6)
+
+
+def test_the_labels_draw_each_objects_mass_about_its_own(models):
+  """Labels version 8: a scene with masses draws each object's mass from the Gamma law of mean its own mass and the
+  seed's relative spread (variance / mean^2 = 0.05 / 0.25^2 = 0.8; SciPy's Gamma as the reference); the same keys
+  give the prior's draws scaled by mass / 0.25 (one shape, 1.25), so at 0.25 kg the law is the prior's, draw for
+  draw; a 50 g cube scores higher than under the prior, and ``mass_known`` fixes the mass instead."""
+  import scipy.stats
+  prior = parallel_jaw_perturbations()
+  draws = lambda p: np.asarray(jax.vmap(lambda k: sample_conditions(k, p, jnp.asarray(DOWN)).mass)(
+      jax.random.split(KEY, 4000)))
+  light = draws(with_object_mass(prior, 0.05))
+  assert scipy.stats.kstest(light, scipy.stats.gamma(a=1.25, scale=0.8 * 0.05).cdf).pvalue > 0.01
+  assert light.mean() == pytest.approx(0.05, rel=0.05) and light.var() == pytest.approx(0.8 * 0.05**2, rel=0.15)
+  np.testing.assert_allclose(light, draws(prior) * 0.2, rtol=1e-5)
+
+  grasps = jax.tree.map(lambda *xs: jnp.stack(xs), *_off_centre_jaws())
+  n = len(_off_centre_jaws())
+  base = _scene(models, [(CUBE, (0.0, 0.0, 0.02), IDENTITY), (CUBE, (-0.12, 0.12, 0.02), IDENTITY)], friction=0.5)
+  batch = lambda scene: np.asarray(_batched_reward(
+      KEY, grasps, jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), scene), BIN).robust_probability)
+  mass = lambda m: jnp.full(P, m, jnp.float32)
+  seed = batch(base)
+  np.testing.assert_array_equal(batch(base.replace(mass=mass(0.25))), seed)
+  drawn = batch(base.replace(mass=mass(0.05)))
+  assert np.all(drawn >= seed) and drawn.sum() > seed.sum() + 1.0, (drawn, seed)
+  assert batch(base.replace(mass=mass(0.05), mass_known=True)).sum() >= drawn.sum()
 
 
 def test_boxes_overlap_matches_a_dense_point_test():

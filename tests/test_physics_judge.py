@@ -69,7 +69,7 @@ def _analytic(models, placed, grasp, gripper, known_mass=False):
   """The analytic reward record of one grasp (the labels' Gamma masses, or the simulated ones)."""
   bodies, obj_models, heap, poses = _scene(models, placed)
   mass = np.array([b.mass for b in bodies] + [1.0] * (P - len(bodies))) if known_mass else None
-  scene = heap_scene(obj_models, heap.object_ids, heap.mask, poses, heap.friction, mass)
+  scene = heap_scene(obj_models, heap.object_ids, heap.mask, poses, heap.friction, mass, mass_known=known_mass)
   return jax.device_get(_reward(jax.random.key(0), grasp, scene, Bin(), gripper))
 
 

@@ -36,6 +36,7 @@ def _content(seed: int, index: int, num_images: int = 4, rows_per_image: int = 5
     "object_poses": rng.normal(size=(n, slots, 7)).astype(np.float32),
     "object_names": np.where(object_ids >= 0, np.char.add("obj", object_ids.astype(str)), ""),
     "object_friction": np.where(object_ids >= 0, 0.8, 0.0).astype(np.float32),
+    "object_mass": np.where(object_ids >= 0, 0.2, 0.0).astype(np.float32),
   }
   rows = {
     "gripper": rng.integers(0, 2, m).astype(np.int8),

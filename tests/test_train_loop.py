@@ -48,7 +48,7 @@ def _write_dataset(out_dir, num_shards: int = 4, images_per_shard: int = 4, seed
               'camera_translation': np.zeros((n, 3), np.float32),
               'heap_id': np.arange(s * n, (s + 1) * n, dtype=np.int64), 'object_ids': np.zeros((n, 1), np.int32),
               'object_poses': np.zeros((n, 1, 7), np.float32), 'object_names': np.array([['box']] * n),
-              'object_friction': np.full((n, 1), 0.8, np.float32)}
+              'object_friction': np.full((n, 1), 0.8, np.float32), 'object_mass': np.full((n, 1), 0.2, np.float32)}
     reward = np.int8(rows['reward'])
     table = {'gripper': np.int8(rows['gripper']), 'center': np.float32(rows['center']),
              'angle': np.float32(rows['angle']), 'grasp_depth': np.float32(rows['depth']),

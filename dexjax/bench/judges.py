@@ -50,9 +50,9 @@ Judge = Callable[[jax.Array, GraspAction, Camera, BinState], tuple[Verdict, BinS
 def analytic_judge(world: PickingWorld, known_mass: bool = False) -> Judge:
   """The analytic judge of ``world``: the labels' reward on the true bin; it never disturbs the heap.
 
-  With ``known_mass`` the robust quality uses each object's simulated mass instead of the seed's Gamma draws
-  (mean 0.25 kg): the labels' reward cannot know an object is heavier than the cup's payload; the physics judge
-  does. Default False: the labels' own definition.
+  The robust quality draws each object's mass as the labels do (labels version 8: the Gamma law centred on the
+  object's simulated mass with the seed's relative spread); with ``known_mass`` it uses the simulated mass as it
+  is. Default False: the labels' own definition.
   """
   def judge(key: jax.Array, action: GraspAction, camera: Camera, state: BinState):
     scene = world.scene(state, known_mass=known_mass)

@@ -14,8 +14,8 @@ highest robust quality over both grippers' candidates:
    the labels' rule;
 2. the ``num_scored`` best collision-free candidates of each gripper scored with the seed's reward in this bin
    (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the object's own friction) with the
-   supervisor's M = 25 draws instead of the labels' 10, twice: with the labels' Gamma masses and with the
-   objects' true masses (part of the state it knows); in both, the target carries the load its neighbours press
+   supervisor's M = 25 draws instead of the labels' 10, twice: with the labels' mass law (Gamma about each
+   object's mass) and with the objects' true masses (part of the state it knows); in both, the target carries the load its neighbours press
    it with at rest (`dexjax.sim.resting_loads`, also state it knows: a box lying across a bar is lifted with the
    bar until it slides off; ``loads=False`` drops it);
 3. the candidate whose smallest score of the three (the two rewards' robust probabilities, the set quality) is
@@ -67,7 +67,7 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
                 mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int,
                 fallback: jax.Array, clear: jax.Array):
   """(image grasp, score, rank) of one gripper's best grasp in the bin: the score is the smallest of its robust
-  probabilities in the bin with the labels' Gamma masses and with the objects' true ``masses`` (P,) kg, and its
+  probabilities in the bin with the labels' mass law and with the objects' true ``masses`` (P,) kg, and its
   set quality (Omega's, with gravity's direction drawn in a cone: the robot's accelerations). The rank orders
   grasps across grippers: in [4, 5.01] for a grasp both rewards accept on an object ``clear`` (P,) bool to lift, in
   [2, 3.01] for one both accept on another object, in [0, 1.01] for a best effort (``fallback``, a traced bool: one
@@ -92,7 +92,7 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
   keys = jax.random.split(key, num_scored)
   score = lambda k, g, s: heap_reward(k, to_world(camera, g), s, params.bin, gripper, reward, pert)
   prior = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene)
-  known = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene.replace(mass=masses))
+  known = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene.replace(mass=masses, mass_known=True))
   ok = jnp.isfinite(top) & (prior.reward == 1) & (known.reward == 1)
   robust = jnp.minimum(jnp.minimum(prior.robust_probability, known.robust_probability), top)
   effort = (fallback & jnp.isfinite(top) & decided_by_robustness(prior.failure)

@@ -174,11 +174,11 @@ class PickingWorld:
     return self.settle_again(dataclasses.replace(state, mask=mask, object_ids=ids))
 
   def scene(self, state: BinState, known_mass: bool = False, loads: bool = False) -> HeapScene:
-    """The analytic reward's view of the bin: the objects' models in slot order, poses and friction (and, with
-    ``known_mass``, each object's simulated mass instead of the reward's Gamma draws; with ``loads``, the load
-    each object carries from its neighbours at rest, `dexjax.sim.contact_loads.resting_loads`). The last state's
-    scenes are kept, so the judges and the supervisor of one attempt share one copy of the stacked distance grids
-    and measure the loads once."""
+    """The analytic reward's view of the bin: the objects' models in slot order, poses, friction and masses (the
+    labels' law: each object's mass drawn about its simulated mass; with ``known_mass``, the simulated mass as it
+    is; with ``loads``, the load each object carries from its neighbours at rest,
+    `dexjax.sim.contact_loads.resting_loads`). The last state's scenes are kept, so the judges and the supervisor
+    of one attempt share one copy of the stacked distance grids and measure the loads once."""
     if self._scenes[0] != id(state):
       self._scenes = (id(state), {}, state)  # the state is kept so that its id is not reused while cached
     scenes = self._scenes[1]
@@ -186,10 +186,9 @@ class PickingWorld:
       base = scenes.get((False, False))
       if base is None:
         base = scenes[(False, False)] = heap_scene(self.models, state.object_ids, state.mask, state.poses,
-                                                   state.friction)
-      mass = jnp.asarray(self.masses(state)) if known_mass else None
+                                                   state.friction, mass=self.masses(state))
       carried = jnp.asarray(self.loads(state)) if loads else None
-      scenes[(known_mass, loads)] = base.replace(mass=mass, loads=carried)
+      scenes[(known_mass, loads)] = base.replace(loads=carried, mass_known=known_mass)
     return scenes[(known_mass, loads)]
 
   def masses(self, state: BinState) -> np.ndarray:

@@ -24,7 +24,7 @@ import numpy as np
 
 from dexjax.config import ConfigError, parse_json
 
-FORMAT_VERSION = 2  # 2: images store the heap state's per-object friction
+FORMAT_VERSION = 3  # 2: images store the heap state's per-object friction; 3: and each object's mass
 MANIFEST_NAME = "manifest.json"
 _META_KEY = "__meta__"
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed member timestamp, so identical content gives identical bytes
@@ -43,6 +43,7 @@ IMAGE_SCHEMA: dict[str, tuple[str, tuple]] = {
   "object_poses": ("float32", ("P", 7)),          # x, y, z (metres), qw, qx, qy, qz in the world frame
   "object_names": ("U", ("P",)),                  # object keys, "" for empty slots
   "object_friction": ("float32", ("P",)),         # Coulomb friction of each object (heap state), 0 for empty
+  "object_mass": ("float32", ("P",)),             # each object's simulated mass, kg (the labels' law), 0 for empty
 }
 
 #: Row-level fields (one grasp action each), leading axis M: name -> (dtype, trailing shape).

@@ -49,8 +49,10 @@ PARALLEL_JAW, SUCTION = 0, 1
 #: (k a >= m g (d cos a + h sin a), `bellows_margin`): a bowl held a few mm off its axis bends them to the stop.
 #: 7: a parallel-jaw grasp whose pads would close on a bin wall (the wall lies between them, `jaw_closing_box`:
 #: one finger outside the bin, the palm passing over the wall) is a bin collision; version 6 found the contacts on
-#: the object beyond the wall, and the physics judge's jaws closed on the wall (issue 42).
-LABEL_VERSION = 7
+#: the object beyond the wall, and the physics judge's jaws closed on the wall (issue 42). 8: each object's mass is
+#: drawn from the Gamma law centred on its own simulated mass with the seed's relative spread
+#: (`dexjax.quality.with_object_mass`) instead of the seed's prior about 0.25 kg; images store ``object_mass``.
+LABEL_VERSION = 8
 
 
 @struct.dataclass

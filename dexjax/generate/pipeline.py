@@ -11,8 +11,9 @@ a depth renderer, the jitted labeller); `ShardGenerator.generate` makes the cont
 * a heap whose simulation diverged is dropped (its images are not made; counted in the stats); objects
   that left the bin are removed from the heap before rendering and labelling;
 * image j: camera, render (depth and slot mask), optional sensor noise on the depth the policy sees,
-  then `label_image` on the heap's `HeapScene` (settled poses and the state's per-object friction, which the
-  image also stores as ``object_friction``); rows that exist (``ok``) are kept, in order.
+  then `label_image` on the heap's `HeapScene` (settled poses, the state's per-object friction and each object's
+  simulated mass, which the image also stores as ``object_friction`` and ``object_mass``; the labels draw each
+  object's mass about its own, labels version 8); rows that exist (``ok``) are kept, in order.
 
 `generate_shard` is the picklable task a worker process (or Ray worker) runs: it keeps one `ShardGenerator` per
 process and config, and writes the shard with `dexjax.data.finish_shard`.
@@ -106,6 +107,7 @@ class ShardGenerator:
     self.meshes = [p.mesh for p in prepared]
     self.models = [p.model for p in prepared]
     self.heap_objects = heap_objects(prepared)
+    self.masses = np.array([o.mass for o in self.heap_objects], np.float32)  # kg, the physics' (dexjax.sim)
     self.params = label_params(config)
     self.grasp_sets = supervisor_sets(config, self.models, cache_dir)
     width, height = image_size(config)
@@ -129,12 +131,16 @@ class ShardGenerator:
 
   def _heap_scene(self, ids: np.ndarray, mask: np.ndarray, poses: np.ndarray,
                   friction: np.ndarray) -> tuple[HeapScene, Any, Any]:
-    """The reward's scene of one heap (its P models stacked in slot order, the state's friction per slot) and
-    its slots' grasp sets."""
-    scene = heap_scene(self.models, ids, mask, poses, friction)
+    """The reward's scene of one heap (its P models stacked in slot order, the state's friction and the objects'
+    masses per slot) and its slots' grasp sets."""
+    scene = heap_scene(self.models, ids, mask, poses, friction, mass=self.slot_masses(ids, mask))
     slot_ids = scene_slot_ids(ids, mask)
     pj, su = (jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[slot_ids]), s) for s in self.grasp_sets)
     return scene, pj, su
+
+  def slot_masses(self, ids: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(P,) float32 each slot's object's mass, kg (0 in empty slots)."""
+    return np.where(mask, self.masses[np.maximum(ids, 0)], 0.0).astype(np.float32)
 
   def generate(self, index: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """The images, rows and stats of shard ``index`` (stats: counts and per-stage seconds; not stored)."""
@@ -198,7 +204,7 @@ class ShardGenerator:
              'camera_translation': np.asarray(camera.position, np.float32),
              'heap_id': np.int64(index * self.heaps_per_shard + h), 'object_ids': ids.astype(np.int32),
              'object_poses': np.asarray(poses, np.float32), 'object_names': names,
-             'object_friction': friction}
+             'object_friction': friction, 'object_mass': self.slot_masses(ids, mask)}
     keep = out.ok
     image_rows = {'gripper': out.gripper[keep].astype(np.int8), 'center': out.center[keep].astype(np.float32),
                   'angle': out.angle[keep].astype(np.float32), 'grasp_depth': out.grasp_depth[keep].astype(np.float32),

@@ -148,7 +148,8 @@ def relabel_shard(models: Sequence, params: LabelParams, shard: Shard, key: jax.
          'failure': np.zeros(n, np.int32)}
   for j in range(len(images['heap_id'])):
     ids = np.asarray(images['object_ids'][j])
-    scene = heap_scene(models, ids, ids >= 0, images['object_poses'][j], images['object_friction'][j])
+    scene = heap_scene(models, ids, ids >= 0, images['object_poses'][j], images['object_friction'][j],
+                       mass=images['object_mass'][j])
     for gripper in (PARALLEL_JAW, SUCTION):
       index = np.nonzero((rows['image_index'] == j) & (rows['gripper'] == gripper))[0]
       if len(index) == 0:

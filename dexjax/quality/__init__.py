@@ -8,7 +8,7 @@ from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, SUPERVISOR_
                                    map_draws, perturb_parallel_jaw_grasp, perturb_suction_grasp,
                                    robust_jaw_samples, robust_parallel_jaw_quality, robust_suction_quality,
                                    sample_attempt, sample_conditions, suction_perturbations,
-                                   with_known_friction, with_known_mass)
+                                   with_known_friction, with_known_mass, with_object_mass)
 from dexjax.quality.gripper_geometry import GripperGeometry, jaw_collides, jaw_collision_points
 from dexjax.quality.heap_reward import (REWARD_FAILURES, HeapScene, RewardParams, RewardRecord, heap_grasp_reward,
                                         heap_scene,
@@ -25,6 +25,7 @@ __all__ = [
     "SUPERVISOR_SAMPLES", "SUPERVISOR_THRESHOLD", "Perturbations", "RobustQuality", "nominal_conditions",
     "parallel_jaw_perturbations", "perturb_parallel_jaw_grasp", "perturb_suction_grasp",
     "robust_parallel_jaw_quality", "robust_suction_quality", "sample_conditions", "suction_perturbations", "with_known_friction", "with_known_mass",
+    "with_object_mass",
     "NNLSResult", "lift_bounded_groups", "nnls", "resists", "wrench_residual", "GripperGeometry", "jaw_collides",
     "jaw_collision_points", "REWARD_FAILURES",
     "HeapScene", "RewardParams", "RewardRecord", "heap_grasp_reward", "heap_scene", "parallel_jaw_collisions",

@@ -23,7 +23,9 @@ S = 1 iff, in this order of checks (the first failing one names the `RewardRecor
    is the world's -z in that frame (``Perturbations.gravity_axis`` = R^T (0, 0, -1), ``gravity_cone_angle``
    = 0) and the Coulomb friction is the target's own, ``HeapScene.friction`` (seed: friction is drawn once
    per object as part of the state, `dexjax.sim.HeapState.friction`). The M draws randomise what the seed
-   names: the object mass (Gamma), the gripper position (2.5 mm / 0.1 mm) and the disturbance wrench eps_w.
+   names: the object mass (Gamma), the gripper position (2.5 mm / 0.1 mm) and the disturbance wrench eps_w. A
+   scene with ``mass`` (labels version 8) draws each object's mass from the Gamma law centred on its own mass
+   with the seed's relative spread instead of the seed's prior about 0.25 kg (``docs/deviations.md``).
    A scene with ``loads`` (the supervisor's privileged state, not the seed's reward) adds the target's: the
    wrench its neighbours press it with at rest (`dexjax.sim.resting_loads`), fixed in every draw.
 
@@ -56,7 +58,7 @@ from dexjax.quality.gripper_geometry import (jaw_clearance, jaw_closing_box, jaw
                                              suction_contact_points, suction_rim_points, to_world)
 from dexjax.quality.robust import (REWARD_SAMPLES, REWARD_THRESHOLD, Perturbations, parallel_jaw_perturbations,
                                    robust_parallel_jaw_quality, robust_suction_quality, suction_perturbations,
-                                   with_known_friction, with_known_mass)
+                                   with_known_friction, with_known_mass, with_object_mass)
 
 if TYPE_CHECKING:
   from dexjax.sim.heap import Bin
@@ -86,11 +88,14 @@ class HeapScene:
       quaternion (w, x, y, z) rotating object coordinates into the world (`SettleResult.poses[b]`).
     friction: (P,) float32 Coulomb friction coefficient of each slot's object, part of the heap state
       (`HeapState.friction`, drawn once per object from the seed's truncated Gaussian).
-    mass: None (the seed's reward: the robust quality draws the mass from its Gamma distribution), or (P,) float32
-      each slot's known mass, kg (a simulated bin's true masses: the benchmark's ``known_mass`` judge).
+    mass: None (the seed's reward: the robust quality draws the mass from its Gamma prior, mean 0.25 kg), or (P,)
+      float32 each slot's object's mass, kg: the draws follow the Gamma law centred on it with the prior's relative
+      spread (`dexjax.quality.with_object_mass`; labels version 8), or with ``mass_known`` are fixed at it (a
+      simulated bin's true masses: the benchmark's ``known_mass`` judge).
     loads: None (the seed's reward), or (P, 6) float32 the load each slot's object carries from its neighbours
       at rest: force (N) and torque (N m, about its centre of mass), world frame (`dexjax.sim.resting_loads`);
       the target's is added to every draw's external wrench.
+    mass_known: static; with ``mass``, the draws use it as it is instead of drawing around it.
   """
 
   models: ObjectModel
@@ -100,6 +105,7 @@ class HeapScene:
   friction: jax.Array
   mass: jax.Array | None = None
   loads: jax.Array | None = None
+  mass_known: bool = struct.field(pytree_node=False, default=False)
 
 
 @struct.dataclass
@@ -158,7 +164,7 @@ def scene_slot_ids(object_ids: Any, mask: Any) -> np.ndarray:
 
 
 def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses: Any, friction: Any,
-               mass: Any = None) -> HeapScene:
+               mass: Any = None, mass_known: bool = False) -> HeapScene:
   """The `HeapScene` of one heap of P slots from the available objects' models: slot i's model is
   ``models[object_ids[i]]`` (empty slots repeat the first object's; ignored by the reward).
 
@@ -166,7 +172,8 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
     models: the N available objects' models (one grid size).
     object_ids: (P,) ints into ``models`` (anything where not ``mask``); mask: (P,) bool.
     poses: (P, 7) object-frame poses (xyz metres, wxyz); friction: (P,) Coulomb friction per slot.
-    mass: None, or (P,) known mass per slot, kg (see `HeapScene`).
+    mass: None, or (P,) each slot's object's mass, kg; mass_known: draw around it (False) or use it as it is
+      (see `HeapScene`).
   """
   mask = np.asarray(mask, bool)
   slot_ids = scene_slot_ids(object_ids, mask)
@@ -174,7 +181,8 @@ def heap_scene(models: Sequence[ObjectModel], object_ids: Any, mask: Any, poses:
                    object_ids=jnp.arange(len(slot_ids), dtype=jnp.int32), mask=jnp.asarray(mask),
                    poses=jnp.asarray(poses, jnp.float32),
                    friction=jnp.asarray(np.where(mask, np.asarray(friction), 0.0), jnp.float32),
-                   mass=None if mass is None else jnp.asarray(np.where(mask, np.asarray(mass), 1.0), jnp.float32))
+                   mass=None if mass is None else jnp.asarray(np.where(mask, np.asarray(mass), 1.0), jnp.float32),
+                   mass_known=mass_known)
 
 
 def slot_distances(scene: HeapScene, points: jax.Array) -> jax.Array:
@@ -251,12 +259,12 @@ def _state_perturbations(base: Perturbations, rot: jax.Array, scene: HeapScene, 
                          num_samples: int) -> Perturbations:
   """``base`` with what the heap state fixes for the object in slot ``target``: gravity along the world's -z
   expressed in the object frame (object-to-world ``rot``) and the object's Coulomb friction (and its mass when
-  the scene knows it); the rest stays random."""
+  the scene knows it: drawn around it, or fixed when ``mass_known``); the rest stays random."""
   slot = jnp.maximum(target, 0)
   down = jnp.asarray(_WORLD_DOWN, jnp.float32) @ rot
   fixed = with_known_friction(base, scene.friction[slot])
   if scene.mass is not None:
-    fixed = with_known_mass(fixed, scene.mass[slot])
+    fixed = (with_known_mass if scene.mass_known else with_object_mass)(fixed, scene.mass[slot])
   return fixed.replace(gravity_axis=down, gravity_cone_angle=0.0, num_samples=num_samples)
 
 

@@ -44,7 +44,8 @@ class Perturbations:
 
   Attributes:
     mass_mean: kg.
-    mass_variance: kg^2; 0 fixes the mass at ``mass_mean`` (`with_known_mass`).
+    mass_variance: kg^2; 0 fixes the mass at ``mass_mean`` (`with_known_mass`; `with_object_mass` centres the law
+      on an object's own mass).
     friction_mean: mean of the (pre-truncation) normal.
     friction_variance: variance of the (pre-truncation) normal; 0 fixes the friction at ``friction_mean``
       (clipped to ``friction_range``).
@@ -92,6 +93,16 @@ def with_known_mass(perturbations: Perturbations, mass: float | jax.Array) -> Pe
   """``perturbations`` with the object's mass fixed at ``mass`` (kg) instead of drawn from the Gamma distribution
   (e.g. a simulated object's true mass); the other draws are unchanged."""
   return perturbations.replace(mass_mean=mass, mass_variance=0.0)
+
+
+def with_object_mass(perturbations: Perturbations, mass: float | jax.Array) -> Perturbations:
+  """``perturbations`` with the Gamma mass law centred on the object's own mass: mean ``mass`` (kg) and the
+  perturbations' relative spread, variance = ``mass_variance / mass_mean**2 * mass**2`` (the seed's law,
+  0.05 kg^2 about 0.25 kg, is a coefficient of variation of 0.89: for a 0.05 kg object, variance 0.002 kg^2).
+  The labels of a simulated heap know each object's nominal mass and keep the seed's uncertainty about it (labels
+  version 8); the other draws are unchanged."""
+  ratio = perturbations.mass_variance / perturbations.mass_mean**2
+  return perturbations.replace(mass_mean=mass, mass_variance=ratio * mass * mass)
 
 
 @struct.dataclass
