@@ -266,21 +266,25 @@ def test_the_supervisor_empties_a_bin_of_boxes_under_both_judges(boxes):
 
 
 def test_the_supervisor_tries_its_best_effort_when_no_grasp_passes(boxes):
-  """With the labels' mass prior moved to 100 kg no grasp passes the supervisor's test (the prior-mass reward is
-  never robust): without the fallback the trial stops at once with no grasp; with it the supervisor executes the
-  collision-free grasps of highest true-mass probability, scored at most the threshold 0.5, and empties the bin (a
-  cube and a box, which the labels' reward with the usual prior counts as picked)."""
+  """With the labels' mass law centred on 400 times each object's mass (about 100 kg) no grasp passes the
+  supervisor's test (that reward is never robust): without the fallback the trial stops at once with no grasp;
+  with it the supervisor executes the collision-free grasps of highest true-mass probability, scored at most the
+  threshold 0.5, and empties the bin (a cube and a box, which the labels' reward with their own law counts as
+  picked)."""
   from dexjax.bench import supervisor_policy  # pylint: disable=g-import-not-at-top
   policy = supervisor_policy(boxes)
-  heavy = lambda p: p.replace(mass_mean=100.0)
-  params = policy.params.replace(parallel_jaw_perturbations=heavy(policy.params.parallel_jaw_perturbations),
-                                 suction_perturbations=heavy(policy.params.suction_perturbations))
+
+  class HeavyLabels(type(policy)):
+    def __call__(self, key, observation, scene, masses, *args):
+      return super().__call__(key, observation, scene.replace(mass=scene.mass * 400.0), masses, *args)
+
+  heavy = HeavyLabels(**{f.name: getattr(policy, f.name) for f in dataclasses.fields(policy)})
   judges = {'analytic': analytic_judge(boxes)}
   trial = functools.partial(run_trial, boxes, judges=judges, policy='supervisor', trial=0, advance_by='analytic',
                             protocol=Protocol(objects_per_trial=2))
-  stopped = trial(dataclasses.replace(policy, params=params, fallback=False))
+  stopped = trial(dataclasses.replace(heavy, fallback=False))
   assert len(stopped) == 1 and stopped[0]['stop'] == 'no_grasp' and stopped[0]['gripper'] is None
-  tried = trial(dataclasses.replace(policy, params=params))
+  tried = trial(heavy)
   assert tried[-1]['stop'] == 'empty' and sum(r['analytic'] for r in tried) == 2
   assert all(r['gripper'] is not None and 0.0 <= r['q'] <= 0.5 for r in tried)
 
