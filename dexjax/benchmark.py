@@ -65,7 +65,8 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--no-noise', action='store_true', help='noise-free depth images (default: 0.5 mm correlated noise '
                                                          'and 1 %% dropped pixels unless --config sets noise)')
   p.add_argument('--known-mass', action='store_true',
-                 help="the analytic judge uses each object's simulated mass as it is instead of the labels' Gamma draws about it")
+                 help="the analytic judge uses each object's simulated mass as it is instead of the labels' Gamma "
+                      "draws about it")
   p.add_argument('--supervisor-without-loads', action='store_false', dest='supervisor_loads',
                  help="the supervisor scores grasps without the load its neighbours put on the grasped object "
                       "(default: with it; docs/benchmark.md)")
