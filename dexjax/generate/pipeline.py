@@ -96,6 +96,8 @@ class ShardGenerator:
     config: the run's `GenerateConfig`.
     names: the N object names; image ``object_ids`` index into this list.
     rejected: object sources or files that could not be used, with reasons.
+    masses: (N,) float32 each object's simulated mass, kg (`dexjax.sim.heap_object`: what the physics lifts and
+      the labels' mass law centres on).
   """
 
   def __init__(self, config: GenerateConfig, *, cache_dir: str | os.PathLike[str] | None = None,
@@ -107,7 +109,7 @@ class ShardGenerator:
     self.meshes = [p.mesh for p in prepared]
     self.models = [p.model for p in prepared]
     self.heap_objects = heap_objects(prepared)
-    self.masses = np.array([o.mass for o in self.heap_objects], np.float32)  # kg, the physics' (dexjax.sim)
+    self.masses = np.array([o.mass for o in self.heap_objects], np.float32)
     self.params = label_params(config)
     self.grasp_sets = supervisor_sets(config, self.models, cache_dir)
     width, height = image_size(config)
@@ -133,12 +135,12 @@ class ShardGenerator:
                   friction: np.ndarray) -> tuple[HeapScene, Any, Any]:
     """The reward's scene of one heap (its P models stacked in slot order, the state's friction and the objects'
     masses per slot) and its slots' grasp sets."""
-    scene = heap_scene(self.models, ids, mask, poses, friction, mass=self.slot_masses(ids, mask))
+    scene = heap_scene(self.models, ids, mask, poses, friction, mass=self._slot_masses(ids, mask))
     slot_ids = scene_slot_ids(ids, mask)
     pj, su = (jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[slot_ids]), s) for s in self.grasp_sets)
     return scene, pj, su
 
-  def slot_masses(self, ids: np.ndarray, mask: np.ndarray) -> np.ndarray:
+  def _slot_masses(self, ids: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """(P,) float32 each slot's object's mass, kg (0 in empty slots)."""
     return np.where(mask, self.masses[np.maximum(ids, 0)], 0.0).astype(np.float32)
 
@@ -162,6 +164,7 @@ class ShardGenerator:
       stats['objects_left_bin'] += int((result.mask[h] & result.left_bin[h]).sum())
       ids, poses = np.where(mask, all_ids[h], -1).astype(np.int32), result.poses[h]
       friction = np.where(mask, all_friction[h], 0.0).astype(np.float32)
+      mass = self._slot_masses(ids, mask)
       if not mask.any():
         continue
       clock = time.perf_counter()
@@ -172,7 +175,7 @@ class ShardGenerator:
         j = h * config.dataset.images_per_heap + c
         if j >= config.dataset.images_per_shard:
           break
-        image, image_rows = self._image(j, h, index, ids, mask, poses, friction, render_scene, scene, pj_sets,
+        image, image_rows = self._image(j, h, index, ids, mask, poses, friction, mass, render_scene, scene, pj_sets,
                                         su_sets, (k_camera, k_noise, k_label), stats)
         image_rows['image_index'] = np.full(len(image_rows['gripper']), len(images), np.int32)
         images.append(image)
@@ -181,7 +184,8 @@ class ShardGenerator:
     self.shards_made += 1
     return stacked_images, stacked_rows, stats
 
-  def _image(self, j, h, index, ids, mask, poses, friction, render_scene, scene, pj_sets, su_sets, keys, stats):
+  def _image(self, j, h, index, ids, mask, poses, friction, mass, render_scene, scene, pj_sets, su_sets, keys,
+             stats):
     """Image ``j`` of the shard (heap ``h``): render, noise, label; returns (image fields, row fields)."""
     config = self.config
     k_camera, k_noise, k_label = (jax.random.fold_in(k, j) for k in keys)
@@ -204,7 +208,7 @@ class ShardGenerator:
              'camera_translation': np.asarray(camera.position, np.float32),
              'heap_id': np.int64(index * self.heaps_per_shard + h), 'object_ids': ids.astype(np.int32),
              'object_poses': np.asarray(poses, np.float32), 'object_names': names,
-             'object_friction': friction, 'object_mass': self.slot_masses(ids, mask)}
+             'object_friction': friction, 'object_mass': mass}
     keep = out.ok
     image_rows = {'gripper': out.gripper[keep].astype(np.int8), 'center': out.center[keep].astype(np.float32),
                   'angle': out.angle[keep].astype(np.float32), 'grasp_depth': out.grasp_depth[keep].astype(np.float32),
