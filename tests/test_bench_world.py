@@ -272,13 +272,7 @@ def test_the_supervisor_tries_its_best_effort_when_no_grasp_passes(boxes):
   threshold 0.5, and empties the bin (a cube and a box, which the labels' reward with their own law counts as
   picked)."""
   from dexjax.bench import supervisor_policy  # pylint: disable=g-import-not-at-top
-  policy = supervisor_policy(boxes)
-
-  class HeavyLabels(type(policy)):
-    def __call__(self, key, observation, scene, masses, *args):
-      return super().__call__(key, observation, scene.replace(mass=scene.mass * 400.0), masses, *args)
-
-  heavy = HeavyLabels(**{f.name: getattr(policy, f.name) for f in dataclasses.fields(policy)})
+  heavy = _heavy_labels(supervisor_policy(boxes))
   judges = {'analytic': analytic_judge(boxes)}
   trial = functools.partial(run_trial, boxes, judges=judges, policy='supervisor', trial=0, advance_by='analytic',
                             protocol=Protocol(objects_per_trial=2))
@@ -287,6 +281,61 @@ def test_the_supervisor_tries_its_best_effort_when_no_grasp_passes(boxes):
   tried = trial(heavy)
   assert tried[-1]['stop'] == 'empty' and sum(r['analytic'] for r in tried) == 2
   assert all(r['gripper'] is not None and 0.0 <= r['q'] <= 0.5 for r in tried)
+
+
+def _heavy_labels(policy):
+  """``policy`` with the labels' mass law centred on 400 times each object's mass (about 100 kg): no grasp passes."""
+
+  class HeavyLabels(type(policy)):
+    def __call__(self, key, observation, scene, masses, *args):
+      return super().__call__(key, observation, scene.replace(mass=scene.mass * 400.0), masses, *args)
+
+  return HeavyLabels(**{f.name: getattr(policy, f.name) for f in dataclasses.fields(policy)})
+
+
+def test_the_supervisor_scores_further_candidates_only_while_none_passes(boxes, monkeypatch):
+  """The supervisor scores each gripper's eligible candidates ``num_scored`` at a time, best set quality first:
+  on a bin of a cube and a box it stops at the first round holding a grasp both rewards accept (every earlier
+  round holds none) and executes the best grasp of the rounds it scored; when no grasp passes (the heavy labels) it
+  scores every eligible candidate once, in order of set quality, and executes the best effort over all of them."""
+  import importlib  # pylint: disable=g-import-not-at-top
+  from dexjax.bench import supervisor_policy  # pylint: disable=g-import-not-at-top
+  module = importlib.import_module('dexjax.bench.supervisor_policy')
+  rounds, eligible, ranked, candidates = [], {}, module._ranked, module._eligible_quality
+
+  def recording(key, images, idx, top, scene, masses, camera, params, suction, *args):
+    robust, rank = ranked(key, images, idx, top, scene, masses, camera, params, suction, *args)
+    rounds.append((bool(suction), np.asarray(idx), np.asarray(top), np.asarray(robust), np.asarray(rank)))
+    return robust, rank
+
+  def counting(*args):
+    images, quality = candidates(*args)
+    eligible[bool(args[-1])] = int(np.isfinite(np.asarray(quality)).sum())
+    return images, quality
+
+  monkeypatch.setattr(module, '_ranked', recording)
+  monkeypatch.setattr(module, '_eligible_quality', counting)
+  judges = {'analytic': analytic_judge(boxes)}
+  policy = supervisor_policy(boxes, num_scored=8)
+  for labels, passes in ((policy, True), (_heavy_labels(policy), False)):
+    rounds.clear()
+    record = run_trial(boxes, labels, judges, policy='supervisor', trial=0, advance_by='analytic',
+                       protocol=Protocol(objects_per_trial=2, max_attempts=1))[0]
+    best = {}
+    for suction in (False, True):
+      mine = [r for r in rounds if r[0] == suction]
+      assert mine, suction
+      tops = np.concatenate([r[2] for r in mine])
+      assert np.all(np.diff(tops[np.isfinite(tops)]) <= 0), suction  # best set quality first
+      assert len(np.unique(np.concatenate([r[1] for r in mine])[np.isfinite(tops)])) == np.isfinite(tops).sum()
+      assert all(r[4].max() < 2.0 for r in mine[:-1]), suction  # a round runs only while none passes
+      if mine[-1][4].max() < 2.0:  # none passed: every eligible candidate was scored, once
+        assert np.isfinite(tops).sum() == eligible[suction] > 8, suction
+      ranks = np.concatenate([r[4] for r in mine])
+      best[suction] = (ranks.max(), np.concatenate([r[3] for r in mine])[ranks.argmax()])
+    rank, score = max(best.values(), key=lambda b: b[0])
+    assert (rank >= 2.0) == passes and np.isfinite(rank)
+    assert record['q'] == pytest.approx(score) and (record['q'] > 0.5) == passes
 
 
 def test_the_supervisor_takes_an_object_clear_to_lift_first(boxes, monkeypatch):

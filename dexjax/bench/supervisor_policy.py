@@ -12,12 +12,14 @@ highest robust quality over both grippers' candidates:
    expressible from the camera, visible in the true segmentation, inside the image; every valid grasp, not only
    the dataset's robust ones), the ``max_checked`` of highest set quality tested best first for collisions with
    the labels' rule;
-2. the ``num_scored`` best collision-free candidates of each gripper scored with the seed's reward in this bin
-   (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the object's own friction) with the
+2. the collision-free candidates of each gripper, ``num_scored`` at a time in order of set quality, scored with
+   the seed's reward in this bin (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the object's own friction) with the
    supervisor's M = 25 draws instead of the labels' 10, twice: with the labels' mass law (Gamma about each
    object's mass) and with the objects' true masses (part of the state it knows); in both, the target carries
    the load its neighbours press it with at rest (`dexjax.sim.resting_loads`, also state it knows: a box lying
-   across a bar is lifted with the bar until it slides off; ``loads=False`` drops it);
+   across a bar is lifted with the bar until it slides off; ``loads=False`` drops it); the next ``num_scored``
+   are scored only while none so far passes both rewards (a bowl whose 32 best-looking grasps all fail with its
+   real weight may have a 40th that holds);
 3. the candidate whose smallest score of the three (the two rewards' robust probabilities, the set quality) is
    highest, over both grippers (ties broken by the true-mass probability, the set's quality, then the parallel
    jaw first): a grasp the labels, the object's real weight and the robot's accelerations all call robust;
@@ -62,34 +64,41 @@ SUPERVISOR = 'supervisor'
 _slots_clear_to_lift = jax.jit(slots_clear_to_lift)
 
 
-@functools.partial(jax.jit, static_argnames=('suction', 'num_scored'))
-def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax.Array, camera: Camera,
-                mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int,
-                fallback: jax.Array, clear: jax.Array):
-  """(image grasp, score, rank) of one gripper's best grasp in the bin: the score is the smallest of its robust
-  probabilities in the bin with the labels' mass law and with the objects' true ``masses`` (P,) kg, and its
-  set quality (Omega's, with gravity's direction drawn in a cone: the robot's accelerations). The rank orders
-  grasps across grippers: in [4, 5.01] for a grasp both rewards accept on an object ``clear`` (P,) bool to lift, in
-  [2, 3.01] for one both accept on another object, in [0, 1.01] for a best effort (``fallback``, a traced bool: one
-  compilation serves both), -inf when there is none."""
-  reward = params.reward.replace(num_samples=SUPERVISOR_SAMPLES)
+@functools.partial(jax.jit, static_argnames=('suction',))
+def _eligible_quality(sets_pk: GraspSet, scene: HeapScene, camera: Camera, mask: jax.Array, depth: jax.Array,
+                      params: LabelParams, suction: bool):
+  """(image grasps (C,), quality (C,)) of one gripper's C = P K candidates in the bin: each one's set quality, -inf
+  where it is not eligible (not expressible, not visible or colliding; the ``params.supervisor.max_checked`` of
+  highest quality are tested for collisions)."""
   if suction:
     images, eligible = suction_supervisor_candidates(sets_pk, scene, params.bin, camera, mask, params.supervisor,
                                                      params.suction, params.reward, depth=depth, best_first=True)
-    to_world, gripper = suction_grasp_3d, params.suction
-    pert = params.suction_perturbations.replace(num_samples=SUPERVISOR_SAMPLES)
-    heap_reward = suction_heap_reward
   else:
     images, eligible = parallel_jaw_supervisor_candidates(sets_pk, scene, params.bin, camera, mask,
                                                           params.supervisor, params.parallel_jaw, params.reward,
                                                           best_first=True)
-    to_world, gripper = parallel_jaw_grasp_3d, params.parallel_jaw
+  return images, jnp.where(eligible, sets_pk.quality.reshape(-1), -jnp.inf)
+
+
+@functools.partial(jax.jit, static_argnames=('suction',))
+def _ranked(key: jax.Array, images: Any, idx: jax.Array, top: jax.Array, scene: HeapScene, masses: jax.Array,
+            camera: Camera, params: LabelParams, suction: bool, fallback: jax.Array, clear: jax.Array):
+  """(score (n,), rank (n,)) of the candidates ``idx`` (n,) of ``images`` whose set qualities are ``top`` (n,)
+  (-inf: not eligible). The score is the smallest of the grasp's robust probabilities in the bin with the labels'
+  mass law and with the objects' true ``masses`` (P,) kg, and its set quality (Omega's, with gravity's direction
+  drawn in a cone: the robot's accelerations). The rank orders grasps across grippers: in [4, 5.01] for a grasp
+  both rewards accept on an object ``clear`` (P,) bool to lift, in [2, 3.01] for one both accept on another
+  object, in [0, 1.01] for a best effort (``fallback``, a traced bool: one compilation serves both), -inf when it
+  is neither."""
+  reward = params.reward.replace(num_samples=SUPERVISOR_SAMPLES)
+  if suction:
+    to_world, gripper, heap_reward = suction_grasp_3d, params.suction, suction_heap_reward
+    pert = params.suction_perturbations.replace(num_samples=SUPERVISOR_SAMPLES)
+  else:
+    to_world, gripper, heap_reward = parallel_jaw_grasp_3d, params.parallel_jaw, parallel_jaw_heap_reward
     pert = params.parallel_jaw_perturbations.replace(num_samples=SUPERVISOR_SAMPLES)
-    heap_reward = parallel_jaw_heap_reward
-  quality = sets_pk.quality.reshape(-1)
-  top, idx = jax.lax.top_k(jnp.where(eligible, quality, -jnp.inf), num_scored)
   chosen = jax.tree.map(lambda a: a[idx], images)
-  keys = jax.random.split(key, num_scored)
+  keys = jax.random.split(key, idx.shape[0])
   score = lambda k, g, s: heap_reward(k, to_world(camera, g), s, params.bin, gripper, reward, pert)
   prior = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene)
   known = jax.vmap(score, in_axes=(0, 0, None))(keys, chosen, scene.replace(mass=masses, mass_known=True))
@@ -100,8 +109,39 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
   first = 2.0 * clear[jnp.maximum(known.target_slot, 0)]
   rank = jnp.where(ok, 2.0 + first + robust + 1e-2 * known.robust_probability + 1e-4 * top,
                    jnp.where(effort, known.robust_probability + 1e-2 * robust, -jnp.inf))
-  best = jnp.argmax(rank)
-  return jax.tree.map(lambda a: a[best], chosen), robust[best], rank[best]
+  return robust, rank
+
+
+_PASSES = 2.0
+"""A rank at or above this is a grasp both rewards accept (`_ranked`)."""
+
+
+def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax.Array, camera: Camera,
+                mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int,
+                fallback: jax.Array, clear: jax.Array) -> tuple[Any, float, float]:
+  """(image grasp, score, rank) of one gripper's best grasp in the bin (`_ranked`), -inf rank when there is none.
+
+  The eligible candidates are scored ``num_scored`` at a time, best set quality first, in rounds: the next round
+  runs only while no scored grasp passes both rewards, so a bin whose best-looking grasps all fail is searched to
+  its last eligible candidate, and the usual bin costs one round (one compilation serves every round)."""
+  images, quality = _eligible_quality(sets_pk, scene, camera, mask, depth, params, suction)
+  quality = np.asarray(quality)
+  order = np.argsort(-quality, kind='stable')  # as jax.lax.top_k: ties lowest index first
+  count = int(np.isfinite(quality).sum())
+  best = (None, 0.0, -np.inf)
+  for start in range(0, max(count, 1), num_scored):
+    where = np.arange(start, start + num_scored)
+    idx = order[np.minimum(where, order.size - 1)]
+    top = np.where(where < order.size, quality[idx], -np.inf).astype(np.float32)
+    round_key = key if start == 0 else jax.random.fold_in(key, start // num_scored)
+    robust, rank = jax.device_get(_ranked(round_key, images, jnp.asarray(idx, jnp.int32), jnp.asarray(top), scene,
+                                          masses, camera, params, suction, fallback, clear))
+    i = int(np.argmax(rank))
+    if rank[i] > best[2] or best[0] is None:
+      best = (jax.tree.map(lambda a, i=int(idx[i]): a[i], images), float(robust[i]), float(rank[i]))
+    if best[2] >= _PASSES:
+      break
+  return best
 
 
 @dataclasses.dataclass
@@ -111,7 +151,8 @@ class SupervisorPolicy:
   Attributes:
     params: the grippers, perturbations, reward, supervisor settings and bin of the world's labels.
     sets: the (parallel-jaw, suction) `GraspSet` of the world's N objects, (N, K).
-    num_scored: candidates per gripper scored with the reward in the bin (static).
+    num_scored: candidates per gripper scored with the reward in the bin at a time (static; the next ones only
+      while none so far passes).
     loads: the reward's target carries its neighbours' resting load (`PickingWorld.loads`).
     fallback: when no candidate passes, the best effort (see the module doc) instead of no grasp.
     lift_first: among the grasps that pass, those on an object that rises straight out of the heap without
@@ -150,8 +191,8 @@ class SupervisorPolicy:
       sets_pk = heap_grasp_sets(sets, jnp.asarray(slot_ids, jnp.int32))
       grasp, prob, rank = _best_grasp(k, sets_pk, scene, masses, camera, mask, observation.depth, self.params,
                                       suction, self.num_scored, fallback, clear)
-      actions.append(action_from_grasp(observation, grasp, prob, jnp.isfinite(rank)))
-      ranks.append(float(rank))
+      actions.append(action_from_grasp(observation, grasp, jnp.float32(prob), jnp.asarray(np.isfinite(rank))))
+      ranks.append(rank)
     return jax.device_get(actions[int(np.argmax(ranks))])
 
 
