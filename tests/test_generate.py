@@ -70,14 +70,13 @@ def test_dexnet4_yaml_spells_out_the_defaults():
 
 def test_fingerprints_are_known_answers():
   """Known answers: the fingerprints of the defaults and SMALL with labels version 8 (2026-12-07: each object's
-  mass drawn about its own) and
-  procedural objects version 4 (2026-12-06: level-1 flat faces at least the cup's width); every dataset of an
-  older labels or objects version gets a new
+  mass drawn about its own) and procedural objects version 5 (2026-12-07: level-2 vessels of plastic or melamine);
+  every dataset of an older labels or objects version gets a new
   fingerprint, so none is resumed with other labels or other meshes. The speed-only settling fields never change
   a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == '4b0c79adcfc4b212'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == '6dcd5d5518fadc62'
+  assert fingerprint(awake(GenerateConfig())) == '5080a411e11bf302'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'd5a41b2dce72e1d1'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))

@@ -22,8 +22,8 @@ from dexjax.objects.procedural_materials import ABS
 from dexjax.objects.procedural_materials import FILLED_BOTTLE
 from dexjax.objects.procedural_materials import PACKAGED_GOODS
 from dexjax.objects.procedural_materials import PLASTIC_TOOL
-from dexjax.objects.procedural_materials import PORCELAIN
 from dexjax.objects.procedural_materials import SOFTWOOD
+from dexjax.objects.procedural_materials import VESSEL_PLASTIC
 from dexjax.objects.procedural_shapes import ROUND_SEGMENTS
 from dexjax.objects.procedural_shapes import SMALL_SEGMENTS
 from dexjax.objects.procedural_shapes import CrossSection
@@ -347,7 +347,7 @@ def _build_blister(p: Params) -> Manifold:
 
 
 LEVEL2_FAMILIES: tuple[ShapeFamily, ...] = (
-    ShapeFamily('vessel', _draw_vessel, _build_vessel, PORCELAIN),
+    ShapeFamily('vessel', _draw_vessel, _build_vessel, VESSEL_PLASTIC),
     ShapeFamily('bottle', _draw_bottle, _build_bottle, FILLED_BOTTLE),
     ShapeFamily('letter', _draw_letter, _build_letter, ABS),
     ShapeFamily('tool', _draw_tool, _build_tool, PLASTIC_TOOL),

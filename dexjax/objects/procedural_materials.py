@@ -14,8 +14,8 @@ family's `Material` range (`dexjax.objects.procedural_params`). A material is on
   930, tomato soup can 349 g, 6.6 cm x 10.1 cm = 1010; balls: tennis ball 58 g, 6.5 cm = 409, racquetball 41 g,
   5.5 cm = 463, baseball 148 g, 7.5 cm = 670, softball 191 g, 9.6 cm = 413.
 * a **handbook** density (``effective=False``): the mesh is a shell or solid whose volume is the material
-  itself (a porcelain mug, a glass jar, an aluminium heat sink), so the density is the material's (engineering
-  handbook values: porcelain 2300-2400, glass 2400-2600, aluminium 2700, softwood 400-600, polypropylene ~900,
+  itself (a plastic mug, a glass jar, an aluminium heat sink), so the density is the material's (engineering
+  handbook values: melamine ~1500, glass 2400-2600, aluminium 2700, softwood 400-600, polypropylene ~900,
   ABS 1040-1060 kg/m^3).
 
 Where a range is our choice rather than a measurement, `Material.source` says so.
@@ -26,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 
 __all__ = [
-    'Material', 'BOXED_GOODS', 'CANNED_GOODS', 'HOUSEHOLD_SOLIDS', 'BLOCKS', 'BALLS', 'PORCELAIN',
+    'Material', 'BOXED_GOODS', 'CANNED_GOODS', 'HOUSEHOLD_SOLIDS', 'BLOCKS', 'BALLS', 'VESSEL_PLASTIC',
     'FILLED_BOTTLE', 'ABS', 'PLASTIC_TOOL', 'SOFTWOOD', 'PACKAGED_GOODS', 'GLASS', 'ALUMINIUM', 'PRINTED_PLA',
 ]
 
@@ -66,7 +66,11 @@ BALLS = Material('ball', (409.0, 670.0), True, 'YCB balls: tennis 409, softball 
 
 # Level 2: household objects with complex geometry.
 
-PORCELAIN = Material('porcelain', (2300.0, 2400.0), False, 'handbook: porcelain 2300-2400 (mugs, bowls)')
+VESSEL_PLASTIC = Material(
+    'plastic or melamine', (900.0, 1500.0), False,
+    'handbook: polypropylene ~900, melamine ~1500; our choice: household mugs and bowls of this size as plastic or '
+    'melamine (picnic ware): porcelain (2300-2400) made bowls of 0.26-0.54 kg that neither gripper holds, too wide '
+    'for the jaws and too heavy for the cup on their inner bottom under the seed\'s pi/6 gravity cone (docs/objects.md)')
 FILLED_BOTTLE = Material(
     'filled bottle', (600.0, 1000.0), True,
     'our choice: water 1000 (handbook) for a full bottle, down to 600 for a partly filled one')
