@@ -241,8 +241,13 @@ def test_level1_objects_are_household_boxes_and_cylinders():
     for index in range(SIZE_COUNT):
       extents = np.sort(procedural_mesh(1, index, seed).extents)
       assert extents[0] >= LEVEL1_MIN_THICKNESS - 1e-9, (index, seed, extents)
-      if procedural_families(1)[index % 6] in ('cylinder', 'frustum'):  # round: the base is >= 4 cm across
+      family = procedural_families(1)[index % 6]
+      if family in ('cylinder', 'frustum'):  # round: the base is >= 4 cm across
         assert extents[1] >= LEVEL1_MIN_ROUND_DIAMETER - 1e-9, (index, seed, extents)
+      if family == 'frustum':  # and so is the top: the cup seals along a lying frustum's whole side
+        _, params = procedural_params(1, index, seed, procedural_mesh(1, index, seed).metadata['attempt'])
+        top = params['diameter'] * params['top_over_bottom'] * params['extent']
+        assert LEVEL1_MIN_ROUND_DIAMETER - 1e-9 <= top <= params['diameter'] * params['extent'] + 1e-9, (index, seed)
       assert LEVEL1_EXTENT_RANGE[0] - 1e-9 <= extents[2] <= LEVEL1_EXTENT_RANGE[1] + 1e-9, (index, seed, extents)
       widths.append(extents[1])
   assert (LEVEL1_MIN_THICKNESS, LEVEL1_EXTENT_RANGE, LEVEL1_JAW_WIDTH) == (0.03, (0.06, 0.14), 0.045)

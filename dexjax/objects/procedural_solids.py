@@ -17,7 +17,7 @@ tuna can: the cup's). Balls are at least 6 cm across, wider than the jaws open. 
   `LEVEL1_MIN_FACE` (0.02 m, the cup) across;
 * ``prism``: an irregular convex quadrilateral or hexagonal prism (toy blocks), every face at least
   `LEVEL1_MIN_FACE` wide (a lying odd prism shows the cup a ridge);
-* ``frustum``: a truncated cone, the top 0.5-0.85 of the base across (tubs, cups, cone toys);
+* ``frustum``: a truncated cone, the top 0.5-0.85 of the base across and at least 4 cm (tubs, cups, cone toys);
 * ``ball``: a sphere or an ellipsoid with axis ratios >= 0.75 (sports and toy balls).
 
 Each family's `Material` (density range and source) is in `procedural_materials`.
@@ -53,7 +53,7 @@ LEVEL1_MIN_THICKNESS: float = 0.03
 """Smallest extent of a level-1 object, metres: 1.5 x the seed's 20 mm suction cup, above the jaws' 2 cm reach."""
 
 LEVEL1_MIN_ROUND_DIAMETER: float = 0.04
-"""Smallest diameter of a level-1 cylinder or frustum (its base), metres. The seed's 20 mm cup does not seal on
+"""Smallest diameter of a level-1 cylinder or frustum (both its ends), metres. The seed's 20 mm cup does not seal on
 the side of a thinner one lying down: on Dex-Net 3.0's seal model (`dexjax.contacts.suction_seal`, 10 % strain)
 the cup vertical on the top line of a lying cylinder strains 0.104 at 3 cm across, 0.070 at 4 cm and 0.054 at
 5 cm (measured 2026-12-06); a cup-only policy could never pick a thinner can lying down."""
@@ -130,9 +130,11 @@ def _build_cylinder(p: Params) -> Manifold:
 
 
 def _draw_frustum(rng: np.random.Generator) -> Params:
-  # The top at least half the base: a lying frustum's middle is then >= 0.75 x LEVEL1_MIN_ROUND_DIAMETER across,
-  # where the cup seals (a cone of top 0.1 x base is a side the cup seals on nowhere but near its base).
-  return {**_round_solid(rng), 'top_over_bottom': float(rng.uniform(0.5, 0.85))}
+  # The top 0.5-0.85 of the base, and at least LEVEL1_MIN_ROUND_DIAMETER across, so that the cup seals all along a
+  # lying frustum's side as on a cylinder's (a base of 4-4.7 cm then tapers less than 0.85: a tub, nearly a can).
+  params, ratio = _round_solid(rng), float(rng.uniform(0.5, 0.85))
+  base = params['diameter'] * params['extent']
+  return {**params, 'top_over_bottom': max(ratio, LEVEL1_MIN_ROUND_DIAMETER / base)}
 
 
 def _build_frustum(p: Params) -> Manifold:
