@@ -13,13 +13,13 @@ highest robust quality over both grippers' candidates:
    the dataset's robust ones), the ``max_checked`` of highest set quality tested best first for collisions with
    the labels' rule;
 2. the collision-free candidates of each gripper, ``num_scored`` at a time in order of set quality, scored with
-   the seed's reward in this bin (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the object's own friction) with the
-   supervisor's M = 25 draws instead of the labels' 10, twice: with the labels' mass law (Gamma about each
-   object's mass) and with the objects' true masses (part of the state it knows); in both, the target carries
-   the load its neighbours press it with at rest (`dexjax.sim.resting_loads`, also state it knows: a box lying
-   across a bar is lifted with the bar until it slides off; ``loads=False`` drops it); the next ``num_scored``
-   are scored only while none so far passes both rewards (a bowl whose 32 best-looking grasps all fail with its
-   real weight may have a 40th that holds);
+   the seed's reward in this bin (`dexjax.quality.heap_reward`: the true poses, the world's gravity and the
+   object's own friction) with the supervisor's M = 25 draws instead of the labels' 10, twice: with the labels'
+   mass law (Gamma about each object's mass) and with the objects' true masses (part of the state it knows); in
+   both, the target carries the load its neighbours press it with at rest (`dexjax.sim.resting_loads`, also
+   state it knows: a box lying across a bar is lifted with the bar until it slides off; ``loads=False`` drops
+   it); the next ``num_scored`` are scored only while none so far passes both rewards (a bin whose best-looking
+   grasps all fail is searched to its last eligible candidate);
 3. the candidate whose smallest score of the three (the two rewards' robust probabilities, the set quality) is
    highest, over both grippers (ties broken by the true-mass probability, the set's quality, then the parallel
    jaw first): a grasp the labels, the object's real weight and the robot's accelerations all call robust;

@@ -69,8 +69,9 @@ BALLS = Material('ball', (409.0, 670.0), True, 'YCB balls: tennis 409, softball 
 VESSEL_PLASTIC = Material(
     'plastic or melamine', (900.0, 1500.0), False,
     'handbook: polypropylene ~900, melamine ~1500; our choice: household mugs and bowls of this size as plastic or '
-    'melamine (picnic ware): porcelain (2300-2400) made bowls of 0.26-0.54 kg that neither gripper holds, too wide '
-    'for the jaws and too heavy for the cup on their inner bottom under the seed\'s pi/6 gravity cone (docs/objects.md)')
+    'melamine (picnic ware): porcelain (2300-2400) made bowls of 0.26-0.54 kg that neither gripper holds, too '
+    'wide for the jaws and too heavy for the cup on their inner bottom under the seed\'s pi/6 gravity cone '
+    '(docs/objects.md)')
 FILLED_BOTTLE = Material(
     'filled bottle', (600.0, 1000.0), True,
     'our choice: water 1000 (handbook) for a full bottle, down to 600 for a partly filled one')

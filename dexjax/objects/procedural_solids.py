@@ -53,8 +53,8 @@ LEVEL1_MIN_THICKNESS: float = 0.03
 """Smallest extent of a level-1 object, metres: 1.5 x the seed's 20 mm suction cup, above the jaws' 2 cm reach."""
 
 LEVEL1_MIN_ROUND_DIAMETER: float = 0.04
-"""Smallest diameter of a level-1 cylinder or frustum (both its ends), metres. The seed's 20 mm cup does not seal on
-the side of a thinner one lying down: on Dex-Net 3.0's seal model (`dexjax.contacts.suction_seal`, 10 % strain)
+"""Smallest diameter of a level-1 cylinder or frustum (both its ends), metres. The seed's 20 mm cup does not seal
+on the side of a thinner one lying down: on Dex-Net 3.0's seal model (`dexjax.contacts.suction_seal`, 10 % strain)
 the cup vertical on the top line of a lying cylinder strains 0.104 at 3 cm across, 0.070 at 4 cm and 0.054 at
 5 cm (measured 2026-12-06); a cup-only policy could never pick a thinner can lying down."""
 
