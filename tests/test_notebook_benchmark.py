@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 
-def test_benchmark_notebook(run_notebook, monkeypatch):
+def test_benchmark_notebook(run_notebook):
   """Both judges on every attempt, the supervisor marked privileged, the table, the figures and the judges'
   confusion counts."""
-  # Mostly compilation: its kernel compiles with most of XLA's optimisations off (JAX_DISABLE_MOST_OPTIMIZATIONS,
-  # the same programs and results up to rounding): 114 -> 85 s from an empty JAX cache, alone (2026-12-07).
-  monkeypatch.setenv("JAX_DISABLE_MOST_OPTIMIZATIONS", "1")
   small = {"OBJECTS": ["procedural:L1/0:1@41", "procedural:L2/0:1@41"], "PER_TRIAL": 2, "TRIALS": 1,
            "MAX_ATTEMPTS": 3, "POLICIES": ["supervisor", "ambidextrous", "random"]}
   values = {"results": "results", "records": "records", "confusion": "confusion", "figures": "sorted(figures)"}
