@@ -301,8 +301,9 @@ def test_supervisor_collision_tests_on_a_uniform_subset(run):
   images = shard.images
   with ShardGenerator(config, cache_dir=str(cache)) as generator:
     ids, mask = images['object_ids'][0], images['object_ids'][0] >= 0
-    scene, _, suction_sets = generator._heap_scene(ids, mask, images['object_poses'][0],  # pylint: disable=protected-access
-                                                   images['object_friction'][0])
+    scene, _, suction_sets = generator._heap_scene(  # pylint: disable=protected-access
+        ids, mask, images['object_poses'][0], images['object_friction'][0],
+        generator._slot_masses(ids, mask))  # pylint: disable=protected-access
     assert np.allclose(np.asarray(scene.mass)[mask], images['object_mass'][0][mask])
   fx, fy, cx, cy = images['camera_intrinsics'][0]
   camera = Camera(intrinsics=Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=200, height=200),

@@ -239,13 +239,14 @@ def test_level1_objects_are_household_boxes_and_cylinders():
   widths = []
   for seed in (0, 1):
     for index in range(SIZE_COUNT):
-      extents = np.sort(procedural_mesh(1, index, seed).extents)
+      mesh = procedural_mesh(1, index, seed)
+      extents = np.sort(mesh.extents)
       assert extents[0] >= LEVEL1_MIN_THICKNESS - 1e-9, (index, seed, extents)
       family = procedural_families(1)[index % 6]
       if family in ('cylinder', 'frustum'):  # round: the base is >= 4 cm across
         assert extents[1] >= LEVEL1_MIN_ROUND_DIAMETER - 1e-9, (index, seed, extents)
       if family == 'frustum':  # and so is the top: the cup seals along a lying frustum's whole side
-        _, params = procedural_params(1, index, seed, procedural_mesh(1, index, seed).metadata['attempt'])
+        _, params = procedural_params(1, index, seed, mesh.metadata['attempt'])
         top = params['diameter'] * params['top_over_bottom'] * params['extent']
         assert LEVEL1_MIN_ROUND_DIAMETER - 1e-9 <= top <= params['diameter'] * params['extent'] + 1e-9, (index, seed)
       assert LEVEL1_EXTENT_RANGE[0] - 1e-9 <= extents[2] <= LEVEL1_EXTENT_RANGE[1] + 1e-9, (index, seed, extents)

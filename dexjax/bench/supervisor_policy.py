@@ -132,7 +132,7 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
   for start in range(0, max(count, 1), num_scored):
     where = np.arange(start, start + num_scored)
     idx = order[np.minimum(where, order.size - 1)]
-    top = np.where(where < order.size, quality[idx], -np.inf).astype(np.float32)
+    top = np.where(where < count, quality[idx], -np.inf).astype(np.float32)  # the first `count` are eligible
     round_key = key if start == 0 else jax.random.fold_in(key, start // num_scored)
     robust, rank = jax.device_get(_ranked(round_key, images, jnp.asarray(idx, jnp.int32), jnp.asarray(top), scene,
                                           masses, camera, params, suction, fallback, clear))

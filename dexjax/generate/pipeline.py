@@ -131,11 +131,11 @@ class ShardGenerator:
     d = self.config.dataset
     return math.ceil(d.images_per_shard / d.images_per_heap)
 
-  def _heap_scene(self, ids: np.ndarray, mask: np.ndarray, poses: np.ndarray,
-                  friction: np.ndarray) -> tuple[HeapScene, Any, Any]:
+  def _heap_scene(self, ids: np.ndarray, mask: np.ndarray, poses: np.ndarray, friction: np.ndarray,
+                  mass: np.ndarray) -> tuple[HeapScene, Any, Any]:
     """The reward's scene of one heap (its P models stacked in slot order, the state's friction and the objects'
-    masses per slot) and its slots' grasp sets."""
-    scene = heap_scene(self.models, ids, mask, poses, friction, mass=self._slot_masses(ids, mask))
+    masses per slot, `_slot_masses`) and its slots' grasp sets."""
+    scene = heap_scene(self.models, ids, mask, poses, friction, mass=mass)
     slot_ids = scene_slot_ids(ids, mask)
     pj, su = (jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[slot_ids]), s) for s in self.grasp_sets)
     return scene, pj, su
@@ -164,12 +164,12 @@ class ShardGenerator:
       stats['objects_left_bin'] += int((result.mask[h] & result.left_bin[h]).sum())
       ids, poses = np.where(mask, all_ids[h], -1).astype(np.int32), result.poses[h]
       friction = np.where(mask, all_friction[h], 0.0).astype(np.float32)
-      mass = self._slot_masses(ids, mask)
       if not mask.any():
         continue
+      mass = self._slot_masses(ids, mask)
       clock = time.perf_counter()
       render_scene = build_render_scene(self.meshes, ids, poses, mask, bin=config.bin)
-      scene, pj_sets, su_sets = self._heap_scene(ids, mask, poses, friction)
+      scene, pj_sets, su_sets = self._heap_scene(ids, mask, poses, friction, mass)
       stats['seconds']['render'] += time.perf_counter() - clock
       for c in range(config.dataset.images_per_heap):
         j = h * config.dataset.images_per_heap + c
