@@ -25,10 +25,12 @@ highest robust quality over both grippers' candidates:
    jaw first): a grasp the labels, the object's real weight and the robot's accelerations all call robust;
 4. when no candidate passes (both rewards 1), the **best effort** (``fallback``, on by default): the candidate
    that touches only its target without a collision in both rewards (it failed only on robustness) with the
-   highest true-mass robust probability, if that is above 0. The seed's protocol has no "no grasp": a policy
-   returns an action and the robot tries it, and a trial ends only when the bin is empty, after 75 attempts or
-   after 10 consecutive failures; a robot that stopped at the first bin whose visible objects are all hard
-   would leave the objects beneath them in the bin. A best-effort grasp's probability (its smallest score) is
+   highest true-mass robust probability, then the labels' mass law's, if either is above 0 (a 0.51 kg ball
+   12 cm across that the labels' law holds in some of its draws and its true mass in none is still tried, and
+   the physics judge picks it). The seed's protocol has no "no grasp": a policy returns an action and the robot
+   tries it, and a trial ends only when the bin is empty, after 75 attempts or after 10 consecutive failures; a
+   robot that stopped at the first bin whose visible objects are all hard would leave the objects beneath them in
+   the bin. A best-effort grasp's probability (its smallest score) is
    at most the reward's threshold 0.5, so the records tell such attempts apart; ``fallback=False`` returns no
    grasp instead (the trial stops, `dexjax.bench.trial`).
 
@@ -88,8 +90,8 @@ def _ranked(key: jax.Array, images: Any, idx: jax.Array, top: jax.Array, scene: 
   mass law and with the objects' true ``masses`` (P,) kg, and its set quality (Omega's, with gravity's direction
   drawn in a cone: the robot's accelerations). The rank orders grasps across grippers: in [4, 5.01] for a grasp
   both rewards accept on an object ``clear`` (P,) bool to lift, in [2, 3.01] for one both accept on another
-  object, in [0, 1.01] for a best effort (``fallback``, a traced bool: one compilation serves both), -inf when it
-  is neither."""
+  object, in [0, 1.0101] for a best effort (``fallback``, a traced bool: one compilation serves both), -inf when
+  it is neither."""
   reward = params.reward.replace(num_samples=SUPERVISOR_SAMPLES)
   if suction:
     to_world, gripper, heap_reward = suction_grasp_3d, params.suction, suction_heap_reward
@@ -105,10 +107,11 @@ def _ranked(key: jax.Array, images: Any, idx: jax.Array, top: jax.Array, scene: 
   ok = jnp.isfinite(top) & (prior.reward == 1) & (known.reward == 1)
   robust = jnp.minimum(jnp.minimum(prior.robust_probability, known.robust_probability), top)
   effort = (fallback & jnp.isfinite(top) & decided_by_robustness(prior.failure)
-            & decided_by_robustness(known.failure) & (known.robust_probability > 0))
+            & decided_by_robustness(known.failure)
+            & ((known.robust_probability > 0) | (prior.robust_probability > 0)))
   first = 2.0 * clear[jnp.maximum(known.target_slot, 0)]
   rank = jnp.where(ok, 2.0 + first + robust + 1e-2 * known.robust_probability + 1e-4 * top,
-                   jnp.where(effort, known.robust_probability + 1e-2 * robust, -jnp.inf))
+                   jnp.where(effort, known.robust_probability + 1e-2 * robust + 1e-4 * prior.robust_probability, -jnp.inf))
   return robust, rank
 
 
