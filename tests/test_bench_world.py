@@ -59,6 +59,14 @@ def test_the_camera_sees_the_objects_and_the_empty_bin_is_the_background(world, 
   assert np.mean(depth[objects] < background[objects] - 1e-3) > 0.95
 
 
+def test_fill_drops_the_objects_it_is_given(world):
+  state = world.fill(jax.random.key(3), 2, object_ids=[4, 1])
+  assert state.count == 2 and sorted(state.object_ids[state.mask].tolist()) == [1, 4]
+  for bad in ([4], [1, 1], [0, 6], [-1, 0]):
+    with pytest.raises(ValueError, match=r'object_ids: expected 2 distinct object indices in \[0, 6\)'):
+      world.fill(jax.random.key(3), 2, object_ids=bad)
+
+
 def test_remove_takes_one_object_out_and_the_state_round_trips_through_json(world, full):
   slot = int(np.flatnonzero(full.mask)[0])
   after = world.remove(full, slot)
@@ -365,3 +373,27 @@ def test_the_supervisor_takes_an_object_clear_to_lift_first(boxes, monkeypatch):
     only = lambda scene, slot=clear: scene.mask & (jax.numpy.arange(scene.mask.shape[0]) == slot)
     monkeypatch.setattr(module, '_slots_clear_to_lift', only)
     assert target(dataclasses.replace(policy, lift_first=lift_first)) == expected, (clear, lift_first)
+
+
+def test_pickability_drops_each_object_alone_and_counts_what_the_policy_picks(boxes):
+  """Each object alone in the bin, judged in MuJoCo: the top-suction policy picks the cube and the box in every
+  drop within two attempts (a drop picked at the first attempt costs one); the edge policy (the lip over an edge)
+  picks nothing in two attempts, and the summary names the object picked in no drop."""
+  from dexjax.bench import physics_judge  # pylint: disable=g-import-not-at-top
+  from dexjax.bench.pickability import object_pickability, pickability_summary, set_pickability
+  judges = {'analytic': analytic_judge(boxes), 'physics': physics_judge(boxes)}
+  rows = set_pickability(boxes, top_suction, judges, drops=2, attempts=2)
+  assert [r.name for r in rows] == boxes.names
+  for i, r in enumerate(rows):
+    assert (r.drops, r.picked, r.no_grasp) == (2, 2, 0) and 1 <= r.first_attempt <= 2 and 0 <= r.labels_pass <= 2, r
+    assert r.attempts == 2 + (2 - r.first_attempt) and sum(r.failures.values()) == r.attempts - 2, r
+    assert r.grippers == {'suction': 2} and r.pickable and r.mass == boxes.bodies[i].mass
+  firsts = sum(r.first_attempt for r in rows) / 4
+  assert pickability_summary(rows) == {'objects': 2, 'pickable': 2, 'not_pickable': [], 'drops': 4, 'picked': 1.0,
+                                       'first_attempt': firsts, 'labels_pass': sum(r.labels_pass for r in rows) / 4}
+  edge = object_pickability(boxes, edge_suction, judges, 1, drops=1, attempts=2)
+  assert (edge.picked, edge.first_attempt, edge.attempts, edge.pickable) == (0, 0, 2, False)
+  assert sum(edge.failures.values()) == 2 and json.loads(json.dumps(edge.to_json()))['pickable'] is False
+  assert pickability_summary([edge])['not_pickable'] == [boxes.names[1]]
+  with pytest.raises(ValueError, match='Protocol.trials: expected an integer >= 1'):
+    object_pickability(boxes, top_suction, judges, 0, drops=0)

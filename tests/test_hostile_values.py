@@ -310,7 +310,10 @@ def test_objects_options_are_named_as_options(tmp_path, capsys, monkeypatch):
   for argv, option, expected in [(['hulls', 'builtin:box', '--max-hulls', 0], '--max-hulls', '[1, 1024]'),
                                  (['hulls', 'builtin:box', '--max-vertices', 10**9], '--max-vertices', '[4, 1024]'),
                                  (['hulls', 'builtin:box', '--scale', 'nan'], '--scale', '> 0'),
-                                 (['masses', 'builtin:box', '--scale', -1], '--scale', '> 0')]:
+                                 (['masses', 'builtin:box', '--scale', -1], '--scale', '> 0'),
+                                 (['pickable', 'builtin:box', '--drops', 0], '--drops', '[1, 1024]'),
+                                 (['pickable', 'builtin:box', '--attempts', 76], '--attempts', '[1, 75]'),
+                                 (['pickable', 'builtin:box', '--seed', -1], '--seed', '>= 0')]:
     line = _bad(capsys, objects_cli.main, argv, f'error: {option}: expected', expected)
     assert 'collision_hulls' not in line and 'load_object_set' not in line, line
 

@@ -1,7 +1,8 @@
 """The Universal Picking benchmark in simulation (seed, "Characterization of Grasping Benchmark"), judged by the
 analytic reward and by MuJoCo physics: the simulated bin (`PickingWorld`), the judges (`analytic_judge`,
 `physics_judge`), one trial with the seed's stopping rules (`run_trial`), the metrics, the attempt log, and the
-runner of whole benchmarks (`run_benchmark`, the engine of ``python -m dexjax.benchmark``); docs/benchmark.md."""
+runner of whole benchmarks (`run_benchmark`, the engine of ``python -m dexjax.benchmark``), and each object's
+pickability alone in the bin (`set_pickability`, ``python -m dexjax.objects pickable``); docs/benchmark.md."""
 
 from dexjax.bench.analytic_judge import analytic_verdict, world_grasp
 from dexjax.bench.attempt_log import AttemptLogError, append_attempt, read_attempts
@@ -10,6 +11,7 @@ from dexjax.bench.execution import PHYSICS_FAILURES, PhysicsOutcome, PhysicsSett
 from dexjax.bench.suction_hold import SealHold, seal_hold, seal_tolerance
 from dexjax.bench.judges import Judge, Verdict, analytic_judge, physics_judge
 from dexjax.bench.failure_memory import FailureMemory, REPEAT_RADIUS, repeated_attempts
+from dexjax.bench.pickability import ObjectPickability, object_pickability, pickability_summary, set_pickability
 from dexjax.bench.picking_metrics import (Z_95, MotionModel, cleared_fraction, move_seconds, object_difficulty,
                                           rated_acceleration, reliability, sem_interval, summarize, wilson_interval)
 from dexjax.bench.supervisor_policy import SUPERVISOR, SupervisorPolicy, supervisor_policy
@@ -28,6 +30,7 @@ __all__ = [
     'PHASES', 'PathSettings', 'ToolPath', 'move_fraction', 'tool_path',
     'FailureMemory', 'REPEAT_RADIUS', 'repeated_attempts', 'SUPERVISOR', 'SupervisorPolicy', 'supervisor_policy',
     'BenchmarkSpec', 'benchmark_config', 'run_benchmark', 'summarize_run',
+    'ObjectPickability', 'object_pickability', 'pickability_summary', 'set_pickability',
     'AttemptLogError', 'MotionModel', 'Z_95', 'append_attempt', 'cleared_fraction', 'move_seconds',
     'object_difficulty', 'rated_acceleration', 'read_attempts', 'reliability', 'sem_interval', 'summarize',
     'wilson_interval',

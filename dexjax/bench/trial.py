@@ -96,8 +96,8 @@ def _action_fields(action: GraspAction | None) -> dict[str, Any]:
 def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge], *, policy: str, trial: int,
               seed: int = 0, advance_by: str = 'analytic', protocol: Protocol = Protocol(),
               motion: MotionModel = MotionModel(), log_path: str | os.PathLike[str] | None = None,
-              logged: Sequence[Mapping[str, Any]] = (), memory: FailureMemory = FailureMemory()
-              ) -> list[dict[str, Any]]:
+              logged: Sequence[Mapping[str, Any]] = (), memory: FailureMemory = FailureMemory(),
+              start: BinState | None = None) -> list[dict[str, Any]]:
   """Runs (or resumes) trial ``trial`` of ``policy``; returns all its attempt records.
 
   Args:
@@ -112,6 +112,8 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
     log_path: attempts are appended here as they end (`dexjax.bench.append_attempt`); None: not logged.
     logged: this trial's records already in the log (from a killed run); the trial continues after them.
     memory: the policy's memory of failed grasps (`FailureMemory`; off by default).
+    start: the bin at the trial's start; None (default): ``protocol.objects_per_trial`` objects drawn and dropped
+      with the trial's key (`PickingWorld.fill`).
 
   Raises:
     ValueError: ``advance_by`` is not a judge, or the protocol is invalid.
@@ -129,7 +131,8 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
     state = BinState.from_json(records[-1]['state'])
     failures, start_count = records[-1]['consecutive_failures'], records[-1]['objects_at_start']
   else:
-    state, failures = world.fill(jax.random.fold_in(key, 0), protocol.objects_per_trial), 0
+    state = world.fill(jax.random.fold_in(key, 0), protocol.objects_per_trial) if start is None else start
+    failures = 0
     start_count = state.count
   memory.validate()
   attempt = len(records)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
+from collections.abc import Sequence
 from typing import Any
 
 import jax
@@ -135,18 +136,24 @@ class PickingWorld:
     return HeapState(object_ids=ids, mask=state.mask.copy(), positions=state.poses[:, :3].astype(np.float32),
                      quaternions=state.poses[:, 3:].astype(np.float32), friction=state.friction.copy())
 
-  def fill(self, key: jax.Array, count: int) -> BinState:
-    """A bin of ``count`` distinct objects drawn from the N usable ones (all of them when ``count == N``),
-    dropped and settled; objects that left the bin are out of the returned state.
+  def fill(self, key: jax.Array, count: int, object_ids: Sequence[int] | None = None) -> BinState:
+    """A bin of ``count`` distinct objects drawn from the N usable ones (all of them when ``count == N``), or of
+    the given ``object_ids`` (``count`` of them, indices into `names`), dropped and settled; objects that left the
+    bin are out of the returned state.
 
     Raises:
-      ValueError: ``count`` is not in [1, N].
+      ValueError: ``count`` is not in [1, N], or ``object_ids`` are not ``count`` distinct indices in [0, N).
     """
     n = len(self.names)
     if not 1 <= count <= n:
       raise ValueError(f'per-trial object count: expected an integer in [1, {n}] (the usable objects), got {count}')
     dist = self.config.heap.replace(count_mean=float(count), min_count=count, max_count=count)
     heap = jax.device_get(sample_heap_state(key, n, dist))
+    if object_ids is not None:
+      ids = [int(i) for i in object_ids]
+      if len(ids) != count or len(set(ids)) != count or not all(0 <= i < n for i in ids):
+        raise ValueError(f'object_ids: expected {count} distinct object indices in [0, {n}), got {ids}')
+      heap = heap.replace(object_ids=np.asarray(ids, np.int32))
     result = settle(self.bodies, heap, backend='rollout', settings=self.config.settle)
     mask = result.mask[0] & ~result.left_bin[0]
     return BinState(object_ids=np.where(mask, heap.object_ids, -1).astype(np.int32), mask=mask,
