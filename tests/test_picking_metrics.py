@@ -74,15 +74,17 @@ def test_motion_model_slows_with_a_slower_robot_and_longer_paths():
 
 
 def _record(policy, level, obj, success, analytic=None, physics=None, plan=1.0, motion=2.0, trial=0, start=10,
-            gripper='suction', center=None):
+            gripper='suction', center=None, q=None):
   return {'policy': policy, 'level': level, 'object': obj, 'success': success, 'analytic': analytic,
           'physics': physics, 'plan_seconds': plan, 'motion_seconds': motion, 'trial': trial,
-          'objects_at_start': start, 'gripper': gripper, 'world_center': center}
+          'objects_at_start': start, 'gripper': gripper, 'world_center': center, 'q': q}
 
 
 def test_summarize_counts_reliability_mpph_agreement_and_per_object():
-  records = ([_record('a', 1, 'cube', True, True, True)] * 3 + [_record('a', 1, 'cube', False, True, False)]
-             + [_record('a', 2, 'mug', False, False, False)] * 2 + [_record('a', 2, None, False)]
+  records = ([_record('a', 1, 'cube', True, True, True, q=0.9)] * 3
+             + [_record('a', 1, 'cube', False, True, False, q=0.7)]
+             + [_record('a', 2, 'mug', False, False, False, q=0.3), _record('a', 2, 'mug', False, False, False, q=0.5)]
+             + [_record('a', 2, None, False)]
              + [_record('b', 1, 'cube', True, plan=0.5)] * 4)
   out = summarize(records)
   a, b = out['a'], out['b']
@@ -90,6 +92,9 @@ def test_summarize_counts_reliability_mpph_agreement_and_per_object():
   assert a['mpph'] == pytest.approx(3600 * 3 / (7 * 3.0))  # successes per hour of plan + motion time
   assert a['mpph'] == pytest.approx(a['reliability'] * 3600 / a['seconds_per_attempt'])
   assert a['judge_agreement'] == pytest.approx(5 / 6) and a['judged_by_both'] == 6
+  # On the grasps the policy expects to succeed (q above 0.5: not the mug's 0.3 and 0.5) the judges agree on 3 of 4.
+  assert a['judge_agreement_confident'] == pytest.approx(3 / 4) and a['judged_confident'] == 4
+  assert math.isnan(out['b']['judge_agreement_confident']) and out['b']['judged_confident'] == 0
   assert a['per_object']['cube']['attempts'] == 4 and a['per_object']['cube']['reliability'] == 0.75
   assert set(a['per_object']) == {'cube', 'mug'}  # an attempt that aimed at no object counts for the policy only
   assert (a['per_level']['2']['attempts'], a['per_level']['2']['successes']) == (3, 0)

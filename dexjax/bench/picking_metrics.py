@@ -126,6 +126,10 @@ class MotionModel:
             + fast(math.hypot(self.transport_distance, self.approach_height - self.lift_height)))
 
 
+CONFIDENT = 0.5
+"""A predicted probability above this is a grasp the policy expects to succeed (the reward's threshold)."""
+
+
 def _agreement(records: Sequence[Mapping[str, Any]]) -> tuple[float, int]:
   """(fraction of attempts both judges gave the same verdict, attempts judged by both)."""
   both = [r for r in records if r.get('analytic') is not None and r.get('physics') is not None]
@@ -154,10 +158,12 @@ def cleared_fraction(records: Sequence[Mapping[str, Any]]) -> float:
 
 def summarize(records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
   """Per-policy results of attempt records: ``{policy: {reliability, mpph, attempts, successes,
-  judge_agreement, judged_by_both, seconds_per_attempt, plan_seconds, cleared, repeated_attempts,
-  per_level: {level: counts}, per_object: {object: counts}}}`` (counts: attempts, successes, reliability, sem_95,
-  wilson_95). ``cleared``: `cleared_fraction`; ``repeated_attempts``: attempts that repeat an earlier failure of
-  their trial (`dexjax.bench.repeated_attempts`)."""
+  judge_agreement, judged_by_both, judge_agreement_confident, judged_confident, seconds_per_attempt, plan_seconds,
+  cleared, repeated_attempts, per_level: {level: counts}, per_object: {object: counts}}}`` (counts: attempts,
+  successes, reliability, sem_95, wilson_95). ``judge_agreement_confident``: the judges' agreement on the attempts
+  whose predicted probability ``q`` is above `CONFIDENT` (the grasps the policy expects to succeed; the
+  supervisor's best efforts are scored at most 0.5). ``cleared``: `cleared_fraction`; ``repeated_attempts``:
+  attempts that repeat an earlier failure of their trial (`dexjax.bench.repeated_attempts`)."""
   from dexjax.bench.failure_memory import repeated_attempts  # pylint: disable=g-import-not-at-top (NumPy)
   records = list(records)
   repeats = repeated_attempts(records)
@@ -175,6 +181,8 @@ def summarize(records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     entry['seconds_per_attempt'] = total / len(rows)
     entry['plan_seconds'] = plan / len(rows)
     entry['judge_agreement'], entry['judged_by_both'] = _agreement(rows)
+    entry['judge_agreement_confident'], entry['judged_confident'] = _agreement(
+        [r for r in rows if r.get('q') is not None and r['q'] > CONFIDENT])
     entry['cleared'] = cleared_fraction(rows)
     entry['repeated_attempts'] = repeated[policy]
     entry['per_level'] = {str(level): _counts([r for r in rows if r['level'] == level])
@@ -200,6 +208,6 @@ def object_difficulty(summary: Mapping[str, Mapping[str, Any]]) -> dict[str, dic
   return dict(sorted(out.items(), key=lambda kv: (kv[1]['reliability'], kv[0])))
 
 
-__all__ = ['MIN_JERK_PEAK_ACCELERATION', 'MIN_JERK_PEAK_SPEED', 'MotionModel', 'Z_95', 'cleared_fraction',
+__all__ = ['CONFIDENT', 'MIN_JERK_PEAK_ACCELERATION', 'MIN_JERK_PEAK_SPEED', 'MotionModel', 'Z_95', 'cleared_fraction',
            'move_seconds', 'object_difficulty', 'rated_acceleration', 'reliability', 'sem_interval', 'summarize',
            'wilson_interval']
