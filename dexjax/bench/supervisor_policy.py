@@ -110,8 +110,9 @@ def _ranked(key: jax.Array, images: Any, idx: jax.Array, top: jax.Array, scene: 
             & decided_by_robustness(known.failure)
             & ((known.robust_probability > 0) | (prior.robust_probability > 0)))
   first = 2.0 * clear[jnp.maximum(known.target_slot, 0)]
+  best_effort = known.robust_probability + 1e-2 * robust + 1e-4 * prior.robust_probability
   rank = jnp.where(ok, 2.0 + first + robust + 1e-2 * known.robust_probability + 1e-4 * top,
-                   jnp.where(effort, known.robust_probability + 1e-2 * robust + 1e-4 * prior.robust_probability, -jnp.inf))
+                   jnp.where(effort, best_effort, -jnp.inf))
   return robust, rank
 
 
