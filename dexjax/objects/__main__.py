@@ -85,7 +85,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="object sources: 'procedural:L1/0:25@77', 'builtin:all', mesh files or folders")
   pick.add_argument('--drops', type=int, default=3, help='drops (trials) per object (default 3)')
   pick.add_argument('--attempts', type=int, default=3, help='attempts per drop (default 3)')
-  pick.add_argument('--seed', type=int, default=0, help='seed of the drops, cameras and judges (default 0)')
+  pick.add_argument('--seed', type=int, default=argparse.SUPPRESS,  # given before the command too (the preview's)
+                    help='seed of the drops, cameras and judges (default 0)')
   pick.add_argument('--json', action='store_true', help='print the rows and summary as JSON on stdout')
   pick.add_argument('--cache-dir', help='object cache (default $DEXJAX_CACHE or ~/.cache/dexjax/objects)')
   return p
@@ -203,10 +204,10 @@ def _pickable(args: argparse.Namespace) -> int:
       return report_failure(f"no object of {' '.join(args.sources)} could be loaded")
     judges = {'analytic': analytic_judge(world), 'physics': physics_judge(world)}
     rows = set_pickability(world, supervisor_policy(world), judges, drops=args.drops, attempts=args.attempts,
-                           seed=args.seed, progress=None if args.json else _print_pickability)
+                           seed=_seed(args), progress=None if args.json else _print_pickability)
   summary = pickability_summary(rows)
   if args.json:
-    settings = {'sources': list(args.sources), 'drops': args.drops, 'attempts': args.attempts, 'seed': args.seed}
+    settings = {'sources': list(args.sources), 'drops': args.drops, 'attempts': args.attempts, 'seed': _seed(args)}
     print(json.dumps({'objects': [r.to_json() for r in rows], 'summary': summary, 'settings': settings}))
   else:
     print(f"{summary['pickable']} of {summary['objects']} objects picked alone; of {summary['drops']} drops "
@@ -214,6 +215,10 @@ def _pickable(args: argparse.Namespace) -> int:
           f"accepting {summary['labels_pass']:.0%} of the first grasps; picked in no drop: "
           f"{', '.join(summary['not_pickable']) or 'none'}")
   return 0
+
+
+def _seed(args: argparse.Namespace) -> int:
+  return 0 if args.seed is None else args.seed
 
 
 def _print_pickability(row: ObjectPickability) -> None:
@@ -248,7 +253,7 @@ def _check_args(args: argparse.Namespace) -> None:
     checks += [('--drops', 1 <= args.drops <= MAX_STATIC_COUNT, f'an integer in [1, {MAX_STATIC_COUNT}]', args.drops),
                ('--attempts', 1 <= args.attempts <= 75, 'an integer in [1, 75] (the seed\'s attempts per trial)',
                 args.attempts),
-               ('--seed', args.seed >= 0, 'an integer >= 0', args.seed)]
+               ('--seed', _seed(args) >= 0, 'an integer >= 0', args.seed)]
   if args.command == 'hulls':
     checks += [('--max-hulls', 1 <= args.max_hulls <= MAX_STATIC_COUNT, f'an integer in [1, {MAX_STATIC_COUNT}]',
                 args.max_hulls),
