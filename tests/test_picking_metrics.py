@@ -95,6 +95,9 @@ def test_summarize_counts_reliability_mpph_agreement_and_per_object():
   # On the grasps the policy expects to succeed (q above 0.5: not the mug's 0.3 and 0.5) the judges agree on 3 of 4.
   assert a['judge_agreement_confident'] == pytest.approx(3 / 4) and a['judged_confident'] == 4
   assert math.isnan(out['b']['judge_agreement_confident']) and out['b']['judged_confident'] == 0
+  from dexjax.bench.picking_metrics import CONFIDENT  # pylint: disable=g-import-not-at-top
+  from dexjax.quality import REWARD_THRESHOLD  # pylint: disable=g-import-not-at-top
+  assert CONFIDENT == REWARD_THRESHOLD  # "expects to succeed" is the reward's own threshold
   assert a['per_object']['cube']['attempts'] == 4 and a['per_object']['cube']['reliability'] == 0.75
   assert set(a['per_object']) == {'cube', 'mug'}  # an attempt that aimed at no object counts for the policy only
   assert (a['per_level']['2']['attempts'], a['per_level']['2']['successes']) == (3, 0)

@@ -20,7 +20,6 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import jax
-import numpy as np
 
 from dexjax.bench.judges import Judge
 from dexjax.bench.protocol import Protocol
@@ -108,9 +107,7 @@ def object_pickability(world: PickingWorld, planner: Any, judges: Mapping[str, J
   for d in range(drops):
     trial = object_id * drops + d
     start = world.fill(jax.random.fold_in(trial_key(seed, trial), 0), 1, object_ids=[object_id])
-    if not start.count:  # it left the bin as it fell: no attempt
-      trials.append([])
-      continue
+    # An object that left the bin as it fell gets no attempt: run_trial stops at once on the empty bin.
     trials.append(run_trial(world, planner, judges, policy=policy, trial=trial, seed=seed, advance_by='physics',
                             protocol=protocol, start=start))
   return _summary(world, object_id, trials)
@@ -132,7 +129,7 @@ def pickability_summary(rows: list[ObjectPickability]) -> dict[str, Any]:
   """Counts over a set: objects, pickable ones, the names of those picked in no drop, and the fractions of drops
   picked, picked at the first attempt and whose first grasp the labels accept."""
   drops = sum(r.drops for r in rows)
-  frac = lambda field: float(np.round(sum(getattr(r, field) for r in rows) / drops, 4)) if drops else None
+  frac = lambda field: round(sum(getattr(r, field) for r in rows) / drops, 4) if drops else None
   return {'objects': len(rows), 'pickable': sum(r.pickable for r in rows),
           'not_pickable': [r.name for r in rows if not r.pickable], 'drops': drops, 'picked': frac('picked'),
           'first_attempt': frac('first_attempt'), 'labels_pass': frac('labels_pass')}

@@ -127,7 +127,8 @@ class MotionModel:
 
 
 CONFIDENT = 0.5
-"""A predicted probability above this is a grasp the policy expects to succeed (the reward's threshold)."""
+"""A predicted probability above this is a grasp the policy expects to succeed: the reward's threshold
+(`dexjax.quality.REWARD_THRESHOLD`, not imported: this module is plain Python)."""
 
 
 def _agreement(records: Sequence[Mapping[str, Any]]) -> tuple[float, int]:

@@ -30,9 +30,9 @@ highest robust quality over both grippers' candidates:
    the physics judge picks it). The seed's protocol has no "no grasp": a policy returns an action and the robot
    tries it, and a trial ends only when the bin is empty, after 75 attempts or after 10 consecutive failures; a
    robot that stopped at the first bin whose visible objects are all hard would leave the objects beneath them in
-   the bin. A best-effort grasp's probability (its smallest score) is
-   at most the reward's threshold 0.5, so the records tell such attempts apart; ``fallback=False`` returns no
-   grasp instead (the trial stops, `dexjax.bench.trial`).
+   the bin. A best-effort grasp's probability (its smallest score) is at most the reward's threshold 0.5, so the
+   records tell such attempts apart; ``fallback=False`` returns no grasp instead (the trial stops,
+   `dexjax.bench.trial`).
 
 It is the benchmark's reference: if it cannot pick under the physics judge, the simulated world or the labels are
 wrong, not the learning. Its records and figures are marked privileged (``SupervisorPolicy.privileged``).

@@ -197,6 +197,8 @@ def _pickable(args: argparse.Namespace) -> int:
   from dexjax.bench.supervisor_policy import supervisor_policy
   from dexjax.bench.world import PickingWorld
   from dexjax.compile_cache import persistent_compilation_cache
+  from dexjax.objects.sets import check_object_sources
+  check_object_sources(args.sources)  # a missing path or a malformed range: exit 2 before anything is built
   with persistent_compilation_cache(), PickingWorld(benchmark_config(args.sources), cache_dir=args.cache_dir) as world:
     for r in world.rejected:
       warnings.warn(f'rejected {r.file}: {r.reason}', stacklevel=1)
