@@ -191,6 +191,7 @@ def validate_heap_distribution(h: Any, *, source: str = "HeapDistribution", sect
       ("max_count", isinstance(h.max_count, int) and h.min_count <= h.max_count <= MAX_HEAP_OBJECTS,
        f"an integer in [min_count = {h.min_count}, {MAX_HEAP_OBJECTS}] (objects; MAX_HEAP_OBJECTS)"),
       ("count_truncation", h.count_truncation in ("condition", "clip"), "'condition' or 'clip'"),
+      ("count_law", h.count_law in ("poisson", "uniform"), "'poisson' or 'uniform'"),
       number_rule("drop_height", h.drop_height, 0, MAX_BIN_SIZE, "metres above the bin floor", low_open=True),
       number_rule("drop_half_width", h.drop_half_width, 0, MAX_BIN_SIZE, "metres"),
       number_rule("drop_center[0]", h.drop_center[0], -MAX_BIN_SIZE, MAX_BIN_SIZE, "metres"),

@@ -68,15 +68,29 @@ def test_dexnet4_yaml_spells_out_the_defaults():
   assert fingerprint(config) == fingerprint(GenerateConfig())
 
 
+def test_deployment_yaml_sees_what_the_benchmark_policies_see():
+  """configs/deployment.yaml: the benchmark's sensor noise (holes inpainted) and every count of its full bins;
+  the rest is Dex-Net 4.0's."""
+  from dexjax.bench.protocol import Protocol  # pylint: disable=g-import-not-at-top
+  from dexjax.bench.runner import BENCHMARK_NOISE_SETTINGS  # pylint: disable=g-import-not-at-top
+  config = load_generate_config('configs/deployment.yaml')
+  assert {k: getattr(config.noise, k) for k in BENCHMARK_NOISE_SETTINGS} == BENCHMARK_NOISE_SETTINGS
+  assert config.noise.gp_scale_factor == GenerateConfig().noise.gp_scale_factor and config.dataset.inpaint_holes
+  assert (config.heap.count_law, config.heap.min_count, config.heap.max_count) == (
+      'uniform', 1, Protocol().objects_per_trial)
+  seed = GenerateConfig()
+  assert dataclasses.replace(config, objects=seed.objects, heap=seed.heap, noise=seed.noise) == seed
+
+
 def test_fingerprints_are_known_answers():
   """Known answers: the fingerprints of the defaults and SMALL with labels version 8 (2026-12-07: each object's
-  mass drawn about its own) and procedural objects version 5 (2026-12-07: level-2 vessels of plastic or melamine);
-  every dataset of an older labels or objects version gets a new
+  mass drawn about its own), procedural objects version 5 (2026-12-07: level-2 vessels of plastic or melamine) and
+  the fields ``heap.count_law`` and ``dataset.inpaint_holes`` (2026-12-07); every dataset of an older labels or objects version gets a new
   fingerprint, so none is resumed with other labels or other meshes. The speed-only settling fields never change
   a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == '5080a411e11bf302'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'd5a41b2dce72e1d1'
+  assert fingerprint(awake(GenerateConfig())) == 'ef923c864b67e6db'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'a13da045c9ed4ff8'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))
@@ -283,6 +297,32 @@ def test_crops_of_rows_are_centred_on_the_grasp(run):
   crop = np.asarray(grasp_crop(jnp.asarray(depth[rows['image_index'][i]]), jnp.asarray(rows['center'][i]),
                                jnp.asarray(rows['angle'][i]), crop_size=32))
   assert crop[16, 16] == pytest.approx(rows['grasp_depth'][i], abs=1e-6)
+
+
+def test_holes_of_a_sensor_image_are_inpainted_as_the_policies_see_them(run):
+  """With the benchmark's dropout (here 20 %), the stored depth is the policies' observation: holes inpainted,
+  every other pixel the sensor's bit for bit (the run with ``inpaint_holes: false`` keeps them NaN), no suction
+  candidate on a hole; the uniform count law and its bounds are read from the YAML sections."""
+  config, _, cache, _ = run
+  sensor = config_from_dict({**SMALL, 'heap': {**SMALL['heap'], 'count_law': 'uniform', 'min_count': 1},
+                             'noise': {'use_dropout': True, 'dropout_rate': 0.2}}, 'sensor.yaml')
+  assert sensor.heap.count_law == 'uniform' and sensor.dataset.inpaint_holes
+  raw = dataclasses.replace(sensor, dataset=dataclasses.replace(sensor.dataset, inpaint_holes=False))
+  shards = {}
+  for name, c in (('inpainted', sensor), ('raw', raw)):
+    with ShardGenerator(c, cache_dir=str(cache)) as generator:
+      shards[name] = generator.generate(0)[:2]
+  (seen, rows), (sensed, _) = shards['inpainted'], shards['raw']
+  holes = ~np.isfinite(sensed['depth'])
+  assert 0.15 < holes.mean() < 0.25
+  assert np.isfinite(seen['depth']).all() and np.array_equal(seen['depth'][~holes], sensed['depth'][~holes])
+  assert np.array_equal(seen['object_ids'], sensed['object_ids'])  # the same heaps and cameras
+  suction = np.flatnonzero((rows['gripper'] == 1) & (rows['policy'] == CANDIDATE))
+  u, v = np.round(rows['center'][suction]).astype(int).T
+  assert len(suction) > 0 and not holes[rows['image_index'][suction], v, u].any()
+  # Inpainted holes lie within the depths of their neighbourhood: nearer than the bin floor, beyond the camera.
+  assert seen['depth'][holes].min() >= np.nanmin(sensed['depth']) - 1e-6
+  assert seen['depth'][holes].max() <= np.nanmax(sensed['depth']) + 1e-6
 
 
 def test_preview_png_written(run):

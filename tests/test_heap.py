@@ -57,6 +57,24 @@ def test_clipped_count_option():
     sim.sample_object_count(keys[0], 50, sim.HeapDistribution(count_truncation="reject"))
 
 
+def test_uniform_count_option_covers_every_count_of_an_emptied_bin():
+  """count_law='uniform': each count of [1, 25] equally likely (chi-square), padded to 25 slots, the bound capped
+  by the available objects; an unknown law is named."""
+  dist = sim.HeapDistribution(count_law="uniform", min_count=1, max_count=25)
+  keys = jax.random.split(jax.random.key(6), NUM_DRAWS)
+  counts = np.asarray(jax.jit(jax.vmap(lambda k: sim.sample_object_count(k, 50, dist)))(keys))
+  observed = np.bincount(counts, minlength=26)
+  assert observed[0] == 0 and observed[1:].min() > 0
+  _, p = scipy.stats.chisquare(observed[1:])
+  assert p > 1e-3, observed
+  states = jax.vmap(lambda k: sim.sample_heap_state(k, 50, dist))(keys[:200])
+  assert states.mask.shape == (200, 25) and int(states.num_objects.max()) > 20
+  capped = np.asarray(jax.vmap(lambda k: sim.sample_object_count(k, 12, dist))(keys[:2000]))
+  assert capped.min() == 1 and capped.max() == 12
+  with pytest.raises(ValueError, match="count_law"):
+    sim.sample_object_count(keys[0], 50, sim.HeapDistribution(count_law="binomial"))
+
+
 def test_ids_without_replacement_and_padding(draws):
   for ids, mask in zip(draws.object_ids[:2000], draws.mask[:2000]):
     m = mask.sum()

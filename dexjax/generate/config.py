@@ -62,11 +62,17 @@ class DatasetConfig:
     images_per_shard: rendered images per shard (a shard is the unit of work, resume and parallelism).
     images_per_heap: cameras sampled per settled heap (each image is stored with its own rows).
     render_backend: ``'auto'``, ``'gl'`` or ``'raycast'`` (`dexjax.render.DepthRenderer`).
+    inpaint_holes: the depth image stored and sampled is the one a policy plans on: pixels without a return
+      (``noise.use_dropout``) are inpainted (`dexjax.policy.inpaint_depth`, as `dexjax.policy.prepare_observation`
+      and the benchmark do), and candidates come only from pixels with a return (suction points, jaw contact
+      edges), as from a policy's observation mask. Images without holes are unchanged. False: holes stay NaN in
+      the stored image (the samplers avoid them; the training crops read them as 0).
   """
 
   images_per_shard: int = 16
   images_per_heap: int = 1
   render_backend: str = 'auto'
+  inpaint_holes: bool = True
 
 
 @dataclasses.dataclass(frozen=True)

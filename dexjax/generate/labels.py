@@ -176,7 +176,7 @@ def _gripper_rows(key: jax.Array, code: int, camera: Camera, candidates, valid: 
 
 def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Camera, scene: HeapScene,
                 parallel_jaw_sets: sup.GraspSet, suction_sets: sup.GraspSet, params: LabelParams = LabelParams(),
-                rendered_depth: jax.Array | None = None) -> ImageRows:
+                rendered_depth: jax.Array | None = None, observed: jax.Array | None = None) -> ImageRows:
   """Samples, chooses and labels the actions of one image (see the module docstring).
 
   Args:
@@ -191,12 +191,17 @@ def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Ca
     params: `LabelParams`.
     rendered_depth: (H, W) noise-free rendered depth, metres, for the supervisor's visibility test of suction
       targets (default: ``depth``).
+    observed: (H, W) bool pixels the sensor returned, when ``depth`` has its holes inpainted (as a policy's
+      `dexjax.policy.Observation`): candidates come only from these (suction points, jaw contact edges), as
+      from a policy's observation mask (default: every valid pixel of ``depth``).
 
   Returns:
     `ImageRows` with 2A rows: parallel jaws first.
   """
   k_pj, k_su, k_rows_pj, k_rows_su, k_sup_pj, k_sup_su = _image_keys(key)
   pick = pickable_mask(depth, camera, params.bin, params.policy.floor_clearance)
+  if observed is not None:
+    pick = pick & observed
   pj_cands, pj_valid = sample_antipodal_image_grasps(k_pj, depth, camera, params.parallel_jaw_sampler, mask=pick)
   su_cands, su_valid = sample_suction_image_grasps(k_su, depth, camera, params.suction_sampler, mask=pick)
 

@@ -10,8 +10,8 @@ a depth renderer, the jitted labeller); `ShardGenerator.generate` makes the cont
   together with the MuJoCo C engine; heap h has the dataset-wide id ``i * heaps_per_shard + h``;
 * a heap whose simulation diverged is dropped (its images are not made; counted in the stats); objects
   that left the bin are removed from the heap before rendering and labelling;
-* image j: camera, render (depth and slot mask), optional sensor noise on the depth the policy sees,
-  then `label_image` on the heap's `HeapScene` (settled poses, the state's per-object friction and each object's
+* image j: camera, render (depth and slot mask), optional sensor noise on the depth the policy sees (its
+  holes inpainted as a policy's observation, ``dataset.inpaint_holes``: `policy_depth`), then `label_image` on the heap's `HeapScene` (settled poses, the state's per-object friction and each object's
   simulated mass, which the image also stores as ``object_friction`` and ``object_mass``; the labels draw each
   object's mass about its own, labels version 8); rows that exist (``ok``) are kept, in order.
 
@@ -50,6 +50,18 @@ from dexjax.sim.settling import settle
 
 _label = jax.jit(label_image)
 _STAGES = ('settle', 'render', 'label', 'write')
+
+
+def policy_depth(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+  """(the depth a policy plans on, the pixels the sensor returned or None) of a sensor image (H, W) float32
+  metres: holes (NaN, inf, <= 0; `dexjax.render.noise.dropout`) inpainted as `dexjax.policy.prepare_observation`
+  does, (H, W) bool returns; an image without holes comes back as it is, with None."""
+  from dexjax.policy.preprocess import inpaint_depth  # pylint: disable=g-import-not-at-top  (loads the policies)
+  depth = np.asarray(depth, np.float32)
+  observed = np.isfinite(depth) & (depth > 0)
+  if observed.all():
+    return depth, None
+  return np.asarray(inpaint_depth(depth), np.float32), observed
 
 
 def label_params(config: GenerateConfig) -> LabelParams:
@@ -193,10 +205,13 @@ class ShardGenerator:
     camera = run_camera(k_camera, config)
     rendered = self.renderer.render(render_scene, camera)
     depth = noisy_depth(k_noise, rendered.depth, config.noise)
+    observed = None
+    if config.dataset.inpaint_holes:
+      depth, observed = policy_depth(depth)
     stats['seconds']['render'] += time.perf_counter() - clock
     clock = time.perf_counter()
     out: ImageRows = _label(k_label, jnp.asarray(depth), jnp.asarray(rendered.mask), camera, scene, pj_sets,
-                            su_sets, self.params, jnp.asarray(rendered.depth))
+                            su_sets, self.params, jnp.asarray(rendered.depth), observed)
     out = jax.tree.map(np.asarray, out)
     stats['seconds']['label'] += time.perf_counter() - clock
     stats['images'] += 1
@@ -272,4 +287,4 @@ def generate_shard(index: int, config: GenerateConfig, out_dir: str, cache_dir: 
 
 
 __all__ = ['NoObjectsError', 'ShardGenerator', 'close_process_generators', 'generate_shard', 'image_label_key',
-           'label_params', 'process_generator', 'usable_objects']
+           'label_params', 'policy_depth', 'process_generator', 'usable_objects']

@@ -10,9 +10,9 @@ See ``docs/heaps.md``.
 
 from dexjax.sim.bodies import (DEFAULT_DENSITY, DEFAULT_MASS_RANGE, HeapObject, heap_object, heap_objects,
                                mass_solid, object_density, validate_hull)
-from dexjax.sim.heap import (MAX_OBJECTS, Bin, HeapDistribution, HeapState, sample_friction, sample_heap_state,
-                             sample_heap_states, sample_object_count, sample_uniform_quaternion, select_heap,
-                             truncated_poisson_pmf)
+from dexjax.sim.heap import (COUNT_LAWS, MAX_OBJECTS, Bin, HeapDistribution, HeapState, sample_friction,
+                             sample_heap_state, sample_heap_states, sample_object_count, sample_uniform_quaternion,
+                             select_heap, truncated_poisson_pmf)
 from dexjax.sim.scene import (SettleSettings, bin_boxes, build_heap_model, compile_heap, drop_poses, heap_slots,
                               heap_spec, initial_qpos, quat_to_matrix)
 from dexjax.sim.mjx_backend import SettleTimeout
@@ -23,7 +23,7 @@ from dexjax.sim.settling import BACKENDS, SettleResult, default_backend, settle
 __all__ = [
     "DEFAULT_DENSITY", "DEFAULT_MASS_RANGE", "HeapObject", "heap_object", "heap_objects", "mass_solid",
     "object_density", "validate_hull",
-    "MAX_OBJECTS", "Bin", "HeapDistribution", "HeapState", "sample_friction", "sample_heap_state",
+    "COUNT_LAWS", "MAX_OBJECTS", "Bin", "HeapDistribution", "HeapState", "sample_friction", "sample_heap_state",
     "sample_heap_states", "select_heap", "sample_object_count", "sample_uniform_quaternion",
     "truncated_poisson_pmf",
     "SettleSettings", "bin_boxes", "build_heap_model", "compile_heap", "heap_spec", "drop_poses", "heap_slots", "initial_qpos", "quat_to_matrix",

@@ -11,7 +11,9 @@ plus a mask), so it `jit`s and `vmap`s::
   normalised truncated pmf with one categorical draw, so there is no loop. ``count_truncation='clip'`` gives
   the clipped law instead (what the public SD Mask R-CNN heap code, a relative of Dex-Net's, does). When
   fewer than ``max_count`` objects are available the upper bound becomes ``num_available`` (objects are drawn
-  without replacement);
+  without replacement). ``count_law='uniform'`` draws m uniformly from the bounds instead: the counts a full
+  bin passes through as it is emptied one object at a time, for training data like the benchmark's bins of 25
+  (``configs/deployment.yaml``);
 * object identities: the first m entries of a uniform random permutation of ``range(num_available)``
   (uniform without replacement);
 * orientation uniform on SO(3) (a normalised 4-D Gaussian, i.e. a Haar-uniform unit quaternion, wxyz);
@@ -35,6 +37,8 @@ from dexjax.quality.robust import Perturbations, sample_conditions
 
 #: Largest number of objects in a Dex-Net 4.0 heap (seed: at most 10), the default padded length.
 MAX_OBJECTS = 10
+#: The laws of a heap's object count (`HeapDistribution.count_law`).
+COUNT_LAWS = ('poisson', 'uniform')
 
 
 @struct.dataclass
@@ -70,6 +74,9 @@ class HeapDistribution:
       every `HeapState` array.
     count_truncation: static, ``'condition'`` (Poisson conditioned on the bounds: the law of rejection
       sampling, the seed's reading) or ``'clip'`` (Poisson clipped to the bounds).
+    count_law: static, ``'poisson'`` (the seed's: ``count_mean`` and ``count_truncation``) or ``'uniform'``
+      (every count in the bounds equally likely: the counts a bin of ``max_count`` objects passes through, one
+      pick at a time, as the benchmark empties it; ``count_mean`` and ``count_truncation`` are then unused).
     drop_half_width: drop positions are uniform on ``drop_center`` +- this in x and y, metres.
     drop_center: (x, y) centre of the drop square, metres.
     drop_height: height of the dropped centre of mass above the bin floor, metres.
@@ -81,6 +88,7 @@ class HeapDistribution:
   min_count: int = struct.field(pytree_node=False, default=3)
   max_count: int = struct.field(pytree_node=False, default=MAX_OBJECTS)
   count_truncation: str = struct.field(pytree_node=False, default='condition')
+  count_law: str = struct.field(pytree_node=False, default='poisson')
   drop_half_width: float = 0.125
   drop_center: tuple[float, float] = (0.0, 0.0)
   drop_height: float = 0.15
@@ -130,6 +138,8 @@ def _count_bounds(num_available: int, dist: HeapDistribution) -> tuple[int, int]
   if dist.count_truncation not in ('condition', 'clip'):
     raise ValueError(f"HeapDistribution.count_truncation: expected 'condition' or 'clip', got "
                      f'{dist.count_truncation!r}')
+  if dist.count_law not in COUNT_LAWS:
+    raise ValueError(f'HeapDistribution.count_law: expected one of {COUNT_LAWS}, got {dist.count_law!r}')
   if num_available < dist.min_count:
     raise ValueError(f'num_available: expected at least HeapDistribution.min_count = {dist.min_count} objects '
                      f'(they are drawn without replacement), got {num_available}')
@@ -148,9 +158,12 @@ def sample_object_count(key: jax.Array, num_available: int, dist: HeapDistributi
   """Object count m, () int32: Poisson(``dist.count_mean``) conditioned on [min_count, min(max_count, N)].
 
   Exactly the law of rejection sampling (redraw until the count is in range), drawn with one categorical draw;
-  with ``dist.count_truncation == 'clip'``, a Poisson draw clipped to the bounds.
+  with ``dist.count_truncation == 'clip'``, a Poisson draw clipped to the bounds; with ``dist.count_law ==
+  'uniform'``, uniform on the bounds.
   """
   low, high = _count_bounds(num_available, dist)
+  if dist.count_law == 'uniform':
+    return jax.random.randint(key, (), low, high + 1, dtype=jnp.int32)
   if dist.count_truncation == 'clip':
     return jnp.clip(jax.random.poisson(key, dist.count_mean), low, high).astype(jnp.int32)
   k = jnp.arange(low, high + 1, dtype=jnp.float32)
