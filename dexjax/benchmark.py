@@ -22,7 +22,8 @@ policy a memory: no grasp within R metres of a failed grasp of the last ``--memo
 Writes DIR/attempts.jsonl (one line per attempt, appended as it ends: policy, gripper, predicted q, both
 verdicts and failure reasons, object, times, bin state), DIR/results.json (``{"policies": {NAME: {"reliability",
 "mpph", "attempts", "successes", "judge_agreement", "per_level", "per_object", ...}}, "object_difficulty", "config"}``),
-DIR/benchmark.json (the settings) and the figures reliability.png, per_object.png, difficulty.png. Rerun the same
+DIR/benchmark.json (the settings) and the figures reliability.png, per_object.png, difficulty.png, calibration.png
+(per judge, the predicted probability at the chosen grasps against their success). Rerun the same
 command to resume a killed run at its next attempt, with the same results. DIR must be new, empty or a benchmark
 run's (its benchmark.json): files the benchmark did not write are never overwritten or added to. The models are
 loaded before the first trial. Exit code 0 on success, 1 when some trials failed (the others are summarised), 2
@@ -119,7 +120,8 @@ def _number(value, form: str) -> str:
 
 def format_table(results: dict) -> str:
   """The results as a plain-text table: policy (``*``: privileged state), attempts, reliability per level, MPPH,
-  judge agreement, fraction of objects cleared and repeated attempts."""
+  judge agreement, fraction of objects cleared and repeated attempts; then, per judge, the precision of the chosen
+  grasps per gripper, the policy's mean predicted probability and its expected calibration error."""
   rows = ['policy                 attempts  reliability  per level                      MPPH   agree  cleared  repeats']
   for name, e in results['policies'].items():
     levels = ', '.join(f"L{k}: {v['reliability']:.2f}" if k != 'None' else f"other: {v['reliability']:.2f}"
@@ -130,6 +132,14 @@ def format_table(results: dict) -> str:
                 f"{e.get('repeated_attempts', 0):7d}")
   if any(e.get('privileged') for e in results['policies'].values()):
     rows.append('* privileged: plans with the true state of the simulated bin (the ceiling, not a deployable policy)')
+  rows += ['', 'at the chosen grasp    judge     precision: jaws (n)   suction (n)    all    mean q  ECE']
+  for name, e in results['policies'].items():
+    for judge, choice in e.get('at_choice', {}).items():
+      p = choice['precision']
+      grippers = [f"{_number(p[g]['precision'], '.2f'):4s} ({p[g]['chosen']:3d})" for g in ('parallel_jaw', 'suction')]
+      rows.append(f"{name:22s} {judge:9s} {grippers[0]:>20s} {grippers[1]:>12s}   "
+                  f"{_number(p['all']['precision'], '.2f'):5s}  {_number(p['all']['mean_q'], '.2f'):6s}  "
+                  f"{_number(choice['calibration']['ece'], '.3f')}")
   return '\n'.join(rows)
 
 

@@ -56,8 +56,9 @@ def test_a_run_writes_results_log_and_both_verdicts(reference, tmp_path, capsys)
   assert results['config']['objects'] == OBJECTS and results['failed_trials'] == {}
   # Figures from the same results.
   from dexjax.bench.figures import save_figures
-  assert save_figures(results, tmp_path) == ['reliability.png', 'per_object.png', 'difficulty.png']
-  assert all((tmp_path / n).stat().st_size > 1000 for n in ('reliability.png', 'per_object.png', 'difficulty.png'))
+  figures = ['reliability.png', 'per_object.png', 'difficulty.png', 'calibration.png']
+  assert save_figures(results, tmp_path) == figures
+  assert all((tmp_path / n).stat().st_size > 1000 for n in figures)
   # A finished run reruns as a no-op with the same results; other settings in the same directory are refused.
   assert main([*ARGS, '--out', str(reference)]) == 0
   assert _strip(json.loads((reference / 'results.json').read_text())) == _strip(results)

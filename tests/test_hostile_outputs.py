@@ -105,8 +105,8 @@ def test_benchmark_resumes_its_own_run_and_reports_a_damaged_log(tmp_path, capsy
     m.setattr(parallel, 'run_tasks', _fake_trials)
     assert benchmark_main([*BENCH, '--out', str(out)]) == 0
   written = sorted(p.name for p in out.iterdir())
-  assert written == ['attempts.jsonl', 'benchmark.json', 'difficulty.png', 'per_object.png', 'reliability.png',
-                     'results.json']
+  assert written == ['attempts.jsonl', 'benchmark.json', 'calibration.png', 'difficulty.png', 'per_object.png',
+                     'reliability.png', 'results.json']
   assert all(cli.is_dexjax_png(out / n) for n in written if n.endswith('.png'))
   (out / 'my_notes.txt').write_text('mine\n')  # a user's other file in a run's folder is allowed, never written
   assert benchmark_main([*BENCH, '--out', str(out)]) == 0  # resumed: every trial had ended, nothing to compute

@@ -14,7 +14,7 @@ def test_benchmark_notebook(run_notebook):
   assert set(results["policies"]) == {"supervisor", "ambidextrous", "random"}
   assert [name for name, e in results["policies"].items() if e["privileged"]] == ["supervisor"]
   assert sum(confusion.values()) == len(records) == sum(e["attempts"] for e in results["policies"].values())
-  assert run.values["figures"] == ["difficulty.png", "per_object.png", "reliability.png"]
+  assert run.values["figures"] == ["calibration.png", "difficulty.png", "per_object.png", "reliability.png"]
   assert all(r["verdicts"].keys() == {"analytic", "physics"} for r in records)
   assert "reliability" in run.stdout().lower()  # the printed table
   assert "supervisor (privileged): cleared" in run.stdout()

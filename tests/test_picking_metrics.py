@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from dexjax.bench import (AttemptLogError, MotionModel, append_attempt, cleared_fraction, move_seconds,
-                          object_difficulty, rated_acceleration, read_attempts, repeated_attempts, sem_interval,
-                          summarize, wilson_interval)
+from dexjax.bench import (AttemptLogError, MotionModel, append_attempt, calibration, choice_summary,
+                          cleared_fraction, move_seconds, object_difficulty, precision_at_choice, rated_acceleration,
+                          read_attempts, repeated_attempts, sem_interval, summarize, wilson_interval)
 
 
 @pytest.mark.parametrize('k,n', [(0, 1), (0, 10), (3, 10), (10, 10), (57, 61), (1, 75), (125, 131)])
@@ -109,6 +109,64 @@ def test_summarize_counts_reliability_mpph_agreement_and_per_object():
   assert difficulty['mug'] == {'reliability': 0.0, 'sem': 0.0, 'policies': 1}
   assert a['cleared'] == pytest.approx(3 / 10) and b['cleared'] == pytest.approx(4 / 10)
   assert a['repeated_attempts'] == b['repeated_attempts'] == 0  # no grasp centres recorded
+
+
+def _choices(seed: int, n: int = 400) -> list[dict]:
+  """Attempts of a policy whose q is over-confident: success ~ Bernoulli(q^2) under both judges' draws."""
+  rng = np.random.default_rng(seed)
+  q = rng.uniform(0, 1, n)
+  gripper = rng.choice(['parallel_jaw', 'suction'], n)
+  return [{'gripper': str(g), 'q': float(p), 'analytic': bool(rng.uniform() < p * p),
+           'physics': bool(rng.uniform() < p * p)} for g, p in zip(gripper, q)]
+
+
+def test_calibration_matches_a_numpy_histogram_reference():
+  records = _choices(0)
+  q = np.array([r['q'] for r in records])
+  hit = np.array([r['analytic'] for r in records], float)
+  counts, _ = np.histogram(q, bins=10, range=(0, 1))
+  sums, _ = np.histogram(q, bins=10, range=(0, 1), weights=q)
+  wins, _ = np.histogram(q, bins=10, range=(0, 1), weights=hit)
+  full = counts > 0
+  ece = np.sum(counts[full] / len(q) * np.abs(sums[full] / counts[full] - wins[full] / counts[full]))
+  out = calibration(records, 'analytic', 10)
+  assert out['count'] == 400 and [b['count'] for b in out['bins']] == counts.tolist()
+  np.testing.assert_allclose([b['mean_q'] for b in out['bins']], sums / counts, atol=1e-12)
+  np.testing.assert_allclose([b['success'] for b in out['bins']], wins / counts, atol=1e-12)
+  assert out['ece'] == pytest.approx(ece, abs=1e-12)
+  # An over-confident policy (success q^2): the expected error is E|q - q^2| = 1/6 in the limit.
+  assert 0.12 < out['ece'] < 0.22
+  calibrated = [dict(r, analytic=bool(np.random.default_rng(i).uniform() < r['q'])) for i, r in enumerate(records)]
+  assert calibration(calibrated)['ece'] < 0.08
+
+
+def test_calibration_bins_decimal_probabilities_at_their_edges_and_counts_no_grasp_apart():
+  records = [{'gripper': 'suction', 'q': float(np.float32(q)), 'analytic': a, 'physics': None}
+             for q, a in ((0.7, True), (0.7, False), (0.3, True), (1.0, True), (0.0, False))]
+  records.append({'gripper': None, 'q': 0.0, 'analytic': False, 'physics': False})
+  bins = calibration(records, 'analytic', 10)['bins']
+  assert [b['count'] for b in bins] == [1, 0, 0, 1, 0, 0, 0, 2, 0, 1]  # float32 0.7 = 0.69999999 goes to [0.7, 0.8)
+  assert math.isnan(bins[1]['mean_q']) and bins[7]['success'] == 0.5
+  # |0.7 - 0.5| * 2/5 + |0.3 - 1| / 5 + 0 + 0 = 0.22
+  assert calibration(records)['ece'] == pytest.approx(0.22, abs=1e-6)
+  p = precision_at_choice(records, 'analytic')
+  assert p['no_grasp'] == 1 and p['all']['chosen'] == 5 and p['suction']['precision'] == pytest.approx(3 / 5)
+  assert p['parallel_jaw']['chosen'] == 0 and math.isnan(p['parallel_jaw']['precision'])
+  assert set(choice_summary(records)) == {'analytic'}  # physics judged only the attempt without a grasp
+  with pytest.raises(ValueError, match='bins'):
+    calibration(records, bins=0)
+
+
+def test_precision_at_choice_per_gripper_with_wilson_intervals():
+  records = _choices(1)
+  p = precision_at_choice(records, 'physics')
+  for g in ('parallel_jaw', 'suction'):
+    rows = [r for r in records if r['gripper'] == g]
+    k = sum(r['physics'] for r in rows)
+    assert p[g]['chosen'] == len(rows) and p[g]['successes'] == k
+    assert p[g]['wilson_95'] == pytest.approx(list(wilson_interval(k, len(rows))))
+    assert p[g]['mean_q'] == pytest.approx(np.mean([r['q'] for r in rows]))
+  assert p['all']['chosen'] == 400 and p['all']['precision'] == pytest.approx(np.mean([r['physics'] for r in records]))
 
 
 def test_cleared_fraction_and_repeated_attempts():

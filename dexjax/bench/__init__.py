@@ -6,6 +6,7 @@ pickability alone in the bin (`set_pickability`, ``python -m dexjax.objects pick
 
 from dexjax.bench.analytic_judge import analytic_verdict, world_grasp
 from dexjax.bench.attempt_log import AttemptLogError, append_attempt, read_attempts
+from dexjax.bench.choice_calibration import CALIBRATION_BINS, calibration, choice_summary, precision_at_choice
 from dexjax.bench.collision_rule import collision_samples, gripper_collision, label_collision
 from dexjax.bench.execution import PHYSICS_FAILURES, PhysicsOutcome, PhysicsSettings, execute_grasp, receptacle_centre
 from dexjax.bench.suction_hold import SealHold, seal_hold, seal_tolerance
@@ -33,5 +34,5 @@ __all__ = [
     'ObjectPickability', 'object_pickability', 'pickability_summary', 'set_pickability',
     'AttemptLogError', 'MotionModel', 'Z_95', 'append_attempt', 'cleared_fraction', 'move_seconds',
     'object_difficulty', 'rated_acceleration', 'read_attempts', 'reliability', 'sem_interval', 'summarize',
-    'wilson_interval',
+    'wilson_interval', 'CALIBRATION_BINS', 'calibration', 'choice_summary', 'precision_at_choice',
 ]

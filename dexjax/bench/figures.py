@@ -4,7 +4,9 @@
   and judge agreement in the legend (the seed's headline comparison);
 * ``per_object.png``: each policy's per-object reliability with 95 % intervals (the seed's Fig. S2);
 * ``difficulty.png``: each object's reliability averaged over the policies, hardest first, with the standard
-  error of that mean (the seed's Fig. S3).
+  error of that mean (the seed's Fig. S3);
+* ``calibration.png``: per judge, each policy's reliability diagram at its chosen grasps (predicted probability
+  against realised success; `dexjax.bench.choice_calibration`).
 """
 
 from __future__ import annotations
@@ -103,17 +105,51 @@ def plot_difficulty(results: Mapping[str, Any], path: str | os.PathLike[str]) ->
   fig.savefig(path, dpi=120)
 
 
+def plot_calibration(results: Mapping[str, Any], path: str | os.PathLike[str]) -> None:
+  """Reliability diagrams of the chosen grasps, one panel per judge: each policy's mean predicted probability
+  per bin against the fraction the judge calls successes (marker area ~ attempts), the diagonal of a calibrated
+  policy, and each policy's expected calibration error and precision at the choice in the legend."""
+  policies = results['policies']
+  judges = sorted({judge for entry in policies.values() for judge in entry.get('at_choice', {})})
+  fig = Figure(figsize=(4.2 * max(1, len(judges)), 4.2))
+  axes = fig.subplots(1, max(1, len(judges)), squeeze=False)[0]
+  for ax, judge in zip(axes, judges):
+    ax.plot([0, 1], [0, 1], color='0.6', lw=1, ls='--')
+    for name, entry in policies.items():
+      choice = entry.get('at_choice', {}).get(judge)
+      if choice is None:
+        continue
+      full = [b for b in choice['calibration']['bins'] if b['count']]
+      label = (f"{_policy_label(name, entry)}: ECE {choice['calibration']['ece']:.2f}, "
+               f"precision {choice['precision']['all']['precision']:.2f}")
+      ax.plot([b['mean_q'] for b in full], [b['success'] for b in full], marker='', lw=1)
+      ax.scatter([b['mean_q'] for b in full], [b['success'] for b in full], s=[8 + 2 * b['count'] for b in full],
+                 alpha=0.7, label=label, color=ax.lines[-1].get_color())
+    ax.set_xlim(0, 1)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel('predicted probability q of the chosen grasp')
+    ax.set_ylabel(f'success under the {judge} judge')
+    ax.set_title(f'Calibration at the choice ({judge})', fontsize=10)
+    ax.legend(fontsize=6, loc='upper left')
+  fig.tight_layout()
+  fig.savefig(path, dpi=120)
+
+
 def save_figures(results: Mapping[str, Any], out_dir: str | os.PathLike[str]) -> list[str]:
-  """Writes the three figures into ``out_dir``; returns their file names."""
+  """Writes the figures into ``out_dir`` (the per-object ones only with objects attempted, the calibration one
+  only with a judged grasp); returns their file names."""
   out = Path(out_dir)
   names = []
+  judged = any(entry.get('at_choice') for entry in results['policies'].values())
   for name, draw in (('reliability.png', plot_reliability), ('per_object.png', plot_per_object),
-                     ('difficulty.png', plot_difficulty)):
-    if name != 'reliability.png' and not results['object_difficulty']:
+                     ('difficulty.png', plot_difficulty), ('calibration.png', plot_calibration)):
+    if name in ('per_object.png', 'difficulty.png') and not results['object_difficulty']:
+      continue
+    if name == 'calibration.png' and not judged:
       continue
     draw(results, out / name)
     names.append(name)
   return names
 
 
-__all__ = ['plot_difficulty', 'plot_per_object', 'plot_reliability', 'save_figures']
+__all__ = ['plot_calibration', 'plot_difficulty', 'plot_per_object', 'plot_reliability', 'save_figures']

@@ -164,7 +164,9 @@ def summarize(records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
   successes, reliability, sem_95, wilson_95). ``judge_agreement_confident``: the judges' agreement on the attempts
   whose predicted probability ``q`` is above `CONFIDENT` (the grasps the policy expects to succeed; the
   supervisor's best efforts are scored at most 0.5). ``cleared``: `cleared_fraction`; ``repeated_attempts``:
-  attempts that repeat an earlier failure of their trial (`dexjax.bench.repeated_attempts`)."""
+  attempts that repeat an earlier failure of their trial (`dexjax.bench.repeated_attempts`); ``at_choice``: the
+  precision of the chosen grasps and the calibration of ``q`` per judge (`dexjax.bench.choice_summary`)."""
+  from dexjax.bench.choice_calibration import choice_summary  # pylint: disable=g-import-not-at-top (cycle)
   from dexjax.bench.failure_memory import repeated_attempts  # pylint: disable=g-import-not-at-top (NumPy)
   records = list(records)
   repeats = repeated_attempts(records)
@@ -185,6 +187,7 @@ def summarize(records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     entry['judge_agreement_confident'], entry['judged_confident'] = _agreement(
         [r for r in rows if r.get('q') is not None and r['q'] > CONFIDENT])
     entry['cleared'] = cleared_fraction(rows)
+    entry['at_choice'] = choice_summary(rows)
     entry['repeated_attempts'] = repeated[policy]
     entry['per_level'] = {str(level): _counts([r for r in rows if r['level'] == level])
                           for level in sorted({r['level'] for r in rows}, key=str)}

@@ -50,7 +50,7 @@ JUDGES = ('physics', 'analytic')
 #: guess. Until 2026-12-06 the benchmark used 1 mm, a guess (docs/benchmark.md).
 BENCHMARK_NOISE_SETTINGS = {'use_gp': True, 'gp_sigma': 0.0005, 'use_dropout': True, 'dropout_rate': 0.01}
 SETTINGS_FILE, LOG_FILE, RESULTS_FILE = 'benchmark.json', 'attempts.jsonl', 'results.json'
-FIGURE_FILES = ('reliability.png', 'per_object.png', 'difficulty.png')
+FIGURE_FILES = ('reliability.png', 'per_object.png', 'difficulty.png', 'calibration.png')
 #: Keys of ``benchmark.json`` (`BenchmarkSpec.settings_json`) and ``results.json`` (`summarize_run`) by which a
 #: directory is recognised as a benchmark run's (`check_run_dir`).
 SETTINGS_KEYS = ('policies', 'objects', 'protocol', 'judge', 'model', 'seed', 'config_fingerprint')
