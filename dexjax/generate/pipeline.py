@@ -11,9 +11,10 @@ a depth renderer, the jitted labeller); `ShardGenerator.generate` makes the cont
 * a heap whose simulation diverged is dropped (its images are not made; counted in the stats); objects
   that left the bin are removed from the heap before rendering and labelling;
 * image j: camera, render (depth and slot mask), optional sensor noise on the depth the policy sees (its
-  holes inpainted as a policy's observation, ``dataset.inpaint_holes``: `policy_depth`), then `label_image` on the heap's `HeapScene` (settled poses, the state's per-object friction and each object's
-  simulated mass, which the image also stores as ``object_friction`` and ``object_mass``; the labels draw each
-  object's mass about its own, labels version 8); rows that exist (``ok``) are kept, in order.
+  holes inpainted as a policy's observation, ``dataset.inpaint_holes``: `policy_depth`), then `label_image` on
+  the heap's `HeapScene` (settled poses, the state's per-object friction and each object's simulated mass, which
+  the image also stores as ``object_friction`` and ``object_mass``; the labels draw each object's mass about its
+  own, labels version 8); rows that exist (``ok``) are kept, in order.
 
 `generate_shard` is the picklable task a worker process (or Ray worker) runs: it keeps one `ShardGenerator` per
 process and config, and writes the shard with `dexjax.data.finish_shard`.
