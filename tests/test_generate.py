@@ -27,6 +27,7 @@ from dexjax.generate.__main__ import main
 from dexjax.generate.config import GenerateConfig, config_from_dict, fingerprint, load_generate_config
 from dexjax.generate.pipeline import ShardGenerator, label_params
 from dexjax.generate.relabel import generation_reward_keys, relabel_dataset, relabel_shard
+from dexjax.generate.on_policy import policy_candidates
 from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions
 from dexjax.generate.run import generate_dataset, load_run_config, num_shards
 from dexjax.objects.sets import usable_objects
@@ -172,6 +173,59 @@ def test_collection_policy_mixes_supervisor_and_distinct_candidates():
   # No eligible supervisor grasp: every action falls back to the candidates; too few candidates: dropped.
   source, _, ok = collection_actions(jax.random.key(0), valid.at[4:].set(False), jnp.zeros(30, bool), params)
   assert np.all(np.asarray(source) == CANDIDATE) and int(np.asarray(ok).sum()) == 2
+
+
+def test_collection_policy_takes_a_policys_top_scored_candidates_first():
+  """On-policy synthesis: the top_k valid candidates of highest score lead, in order of score, then the rest
+  uniformly without replacement; the supervisor keeps its epsilon share. Without a priority tau is the seed's."""
+  params = PolicyParams(epsilon=0.0, actions_per_gripper=12, top_k=4)
+  valid = jnp.arange(60) % 3 != 0
+  score = jnp.asarray(np.random.default_rng(0).normal(size=60), jnp.float32).at[0].set(99.0)  # 0 is invalid
+  best = [int(i) for i in np.argsort(-np.where(np.asarray(valid), np.asarray(score), -np.inf))[:4]]
+  rest = []
+  for seed in range(100):
+    source, index, ok = map(np.asarray, collection_actions(jax.random.key(seed), valid, jnp.zeros(5, bool), params,
+                                                            score))
+    assert ok.all() and np.all(source == CANDIDATE) and index[:4].tolist() == best
+    assert len(set(index.tolist())) == 12 and np.all(np.asarray(valid)[index])
+    rest.extend(index[4:].tolist())
+  counts = np.bincount(rest, minlength=60)[np.asarray(valid)]
+  assert counts[np.isin(np.flatnonzero(np.asarray(valid)), best)].sum() == 0
+  assert counts.max() < 4 * counts.mean()  # the others uniformly
+  seed = PolicyParams(epsilon=0.0, actions_per_gripper=12)
+  assert np.array_equal(collection_actions(jax.random.key(3), valid, jnp.zeros(5, bool), seed)[1],
+                        collection_actions(jax.random.key(3), valid, jnp.zeros(5, bool), seed, score)[1])
+  with pytest.raises(ValueError, match='top_k'):
+    PolicyParams(top_k=51).validate()
+
+
+def test_policy_candidates_are_every_round_of_the_plans_samples():
+  """A plan's samples (rounds padded to one size) become one candidate set of the plan's grasp type: centre,
+  angle, depth and the suction approach angle or the jaw width kept, invalid entries scored -inf."""
+  # pylint: disable=g-import-not-at-top
+  from dexjax.policy.actions import pad_samples, samples_of
+  from dexjax.sampling.image_grasps import ImageParallelJawGrasp, ImageSuctionGrasp
+  rng = np.random.default_rng(1)
+  f = lambda *shape: jnp.asarray(rng.uniform(0.1, 1.0, shape), jnp.float32)
+  for gripper, make in (('suction', lambda n: ImageSuctionGrasp(center=f(n, 2), angle=f(n), depth=f(n),
+                                                                  approach_angle=f(n))),
+                        ('parallel_jaw', lambda n: ImageParallelJawGrasp(center=f(n, 2), angle=f(n), depth=f(n),
+                                                                         width=f(n)))):
+    first, second = make(6), make(4)
+    rounds = [pad_samples(samples_of(g, f(len(g.depth)), jnp.arange(len(g.depth)) != 1), 1, 6)
+              for g in (first, second)]
+    samples = jax.tree.map(lambda *xs: jnp.concatenate(xs), *rounds)
+    grasps, valid, score = policy_candidates(samples, gripper)
+    assert type(grasps) is type(first) and valid.shape == (12,)
+    assert np.asarray(valid).tolist() == [True, False] + [True] * 4 + [True, False, True, True, False, False]
+    extra = 'approach_angle' if gripper == 'suction' else 'width'
+    for name in ('center', 'angle', 'depth', extra):
+      got = np.asarray(getattr(grasps, name))
+      np.testing.assert_array_equal(got[:6], np.asarray(getattr(first, name)))
+      np.testing.assert_array_equal(got[6:10], np.asarray(getattr(second, name)))
+    assert np.all(np.isneginf(np.asarray(score)[~np.asarray(valid)]))
+  with pytest.raises(ValueError, match='gripper'):
+    policy_candidates(samples, 'vacuum')
 
 
 def test_run_writes_every_shard_with_valid_rows(run):

@@ -3,9 +3,9 @@
 Stages (each a module): `config` (every parameter, YAML), `cameras` (seed distribution or the user's camera),
 `supervisor` (Omega: robust grasp sets per object, mapped into a heap), `policy` (tau: Omega with probability
 epsilon, else uniform over the image's candidates), `labels` (one image: candidates, tau, reward S(x, u)),
-`pipeline` (one shard: settle, render, label), `parallel` (shards on processes or Ray), `run` (a whole run
-with resume), `report` (summary and preview picture), `relabel` (a dataset's rows labelled again with new
-draws). The CLI is ``python -m dexjax.generate``.
+`on_policy` (a learned policy's scored grasps as the candidates to label), `pipeline` (one shard: settle, render,
+label), `parallel` (shards on processes or Ray), `run` (a whole run with resume), `report` (summary and preview
+picture), `relabel` (a dataset's rows labelled again with new draws). The CLI is ``python -m dexjax.generate``.
 """
 
 from dexjax.generate.cameras import apply_camera_file, image_size, run_camera
@@ -17,7 +17,8 @@ from dexjax.generate.parallel import RunResult, run_tasks
 from dexjax.generate.pipeline import (ShardGenerator, close_process_generators, generate_shard, image_label_key,
                                       label_params, supervisor_sets)
 from dexjax.generate.relabel import Relabelled, generation_reward_keys, relabel_shard, row_grasp
-from dexjax.generate.policy import CANDIDATE, SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
+from dexjax.generate.on_policy import policy_candidates
+from dexjax.generate.policy import CANDIDATE, POLICY, SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
 from dexjax.generate.report import RowStats, format_summary, save_generation_png, summarize_rows
 from dexjax.generate.run import check_run_dir, generate_dataset, load_run_config, num_shards, warm_caches
 from dexjax.generate.supervisor import (GraspSet, SupervisorParams, cached_grasp_sets, heap_grasp_sets,
@@ -26,13 +27,14 @@ from dexjax.generate.supervisor import (GraspSet, SupervisorParams, cached_grasp
 from dexjax.objects.sets import NoObjectsError, usable_objects
 
 __all__ = [
-  'CANDIDATE', 'PARALLEL_JAW', 'SUCTION', 'SUPERVISOR', 'DatasetConfig', 'GenerateConfig', 'GraspSet', 'ImageRows',
-  'LabelParams', 'NoObjectsError', 'ObjectsConfig', 'PolicyParams', 'Relabelled', 'RowStats', 'RunResult',
-  'ShardGenerator', 'SupervisorParams', 'apply_camera_file', 'cached_grasp_sets', 'check_run_dir',
+  'CANDIDATE', 'PARALLEL_JAW', 'POLICY', 'SUCTION', 'SUPERVISOR', 'DatasetConfig', 'GenerateConfig', 'GraspSet',
+  'ImageRows', 'LabelParams', 'NoObjectsError', 'ObjectsConfig', 'PolicyParams', 'Relabelled', 'RowStats',
+  'RunResult', 'ShardGenerator', 'SupervisorParams', 'apply_camera_file', 'cached_grasp_sets', 'check_run_dir',
   'close_process_generators', 'collection_actions', 'config_from_dict', 'fingerprint', 'format_summary',
-  'generate_dataset', 'generate_shard', 'generation_reward_keys', 'heap_grasp_sets', 'image_label_key', 'image_size',
-  'label_image', 'label_params', 'load_generate_config', 'load_run_config', 'num_shards', 'parallel_jaw_grasp_set',
-  'parallel_jaw_supervisor_candidates', 'pickable_mask', 'relabel_shard', 'reward_keys', 'row_grasp', 'run_camera',
-  'run_tasks', 'save_generation_png', 'suction_grasp_set', 'suction_supervisor_candidates', 'summarize_rows',
-  'supervisor_draws', 'supervisor_sets', 'usable_objects', 'warm_caches', 'with_grippers',
+  'generate_dataset', 'generate_shard', 'generation_reward_keys', 'heap_grasp_sets', 'image_label_key',
+  'image_size', 'label_image', 'label_params', 'load_generate_config', 'load_run_config', 'num_shards',
+  'parallel_jaw_grasp_set', 'parallel_jaw_supervisor_candidates', 'pickable_mask', 'policy_candidates',
+  'relabel_shard', 'reward_keys', 'row_grasp', 'run_camera', 'run_tasks', 'save_generation_png',
+  'suction_grasp_set', 'suction_supervisor_candidates', 'summarize_rows', 'supervisor_draws', 'supervisor_sets',
+  'usable_objects', 'warm_caches', 'with_grippers',
 ]

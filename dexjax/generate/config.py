@@ -264,7 +264,8 @@ def content_fields(record: Mapping[str, Any]) -> dict[str, Any]:
   """The fields of a config record (``as_dict(config)``, or a run's ``config.json`` ``config``) that determine a
   shard's content, JSON-ready: without the seed and the settling threads, with the settling chunks and waves at
   fixed values (`_SPEED_ONLY`), and without the sleep fields when ``settle.sleep`` is off (or absent): the
-  physics of datasets made before sleeping objects (2026-12-04), which therefore keep their fingerprint."""
+  physics of datasets made before sleeping objects (2026-12-04), which therefore keep their fingerprint; nor
+  ``policy.top_k`` when it is 0 (it orders only a learned policy's candidates; the seed's tau has none)."""
   data = plain_json(record)
   data.pop('seed', None)
   settle = data['settle']
@@ -273,6 +274,8 @@ def content_fields(record: Mapping[str, Any]) -> dict[str, Any]:
   if not settle.get('sleep', False):
     settle.pop('sleep', None)
     settle.pop('sleep_tolerance', None)
+  if not data.get('policy', {}).get('top_k'):
+    data.get('policy', {}).pop('top_k', None)
   return data
 
 

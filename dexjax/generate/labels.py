@@ -6,7 +6,9 @@
    depth-edge pairs, suction points), restricted to points above the bottom of the bin (`pickable_mask`);
 2. maps the supervisor's grasp sets of the heap's objects into the image (`dexjax.generate.supervisor`),
    only when the policy draws at least one supervisor action (a `jax.lax.cond`);
-3. chooses ``actions_per_gripper`` actions per gripper with tau (`dexjax.generate.policy`);
+3. chooses ``actions_per_gripper`` actions per gripper with tau (`dexjax.generate.policy`); with
+   ``policy_candidates`` (on-policy synthesis, `dexjax.generate.on_policy`) a gripper's candidate set is the
+   grasps a learned policy scored on this image instead, its ``top_k`` highest-scored first;
 4. turns each image action into the 3-D grasp it executes and labels it with the heap reward
    (`dexjax.quality.heap_reward`: collisions, exactly one object, robust probability with M = 10).
 
@@ -21,7 +23,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from dexjax.generate import supervisor as sup
-from dexjax.generate.policy import SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
+from dexjax.generate.policy import CANDIDATE, POLICY, SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
 from dexjax.grasps import parallel_jaw_pose, suction_pose
 from dexjax.grippers import ParallelJawGripper, SuctionGripper
 from dexjax.quality.heap_reward import HeapScene, RewardParams, parallel_jaw_heap_reward, suction_heap_reward
@@ -94,7 +96,7 @@ class ImageRows:
     approach_angle: (2A,) float32 angle between approach and optical axis, radians (0 for parallel jaws).
     grasp_pose: (2A, 4, 4) float32 gripper-to-world pose, metres.
     reward, robust_probability, failure, target_slot: the `RewardRecord` fields, (2A,).
-    policy: (2A,) int32, `dexjax.generate.CANDIDATE` or `SUPERVISOR`.
+    policy: (2A,) int32, `dexjax.generate.CANDIDATE`, `SUPERVISOR` or (on-policy candidates) `POLICY`.
     ok: (2A,) bool, the row exists (a candidate or supervisor grasp was available).
   """
 
@@ -152,18 +154,19 @@ def reward_keys(image_key: jax.Array, gripper: int, num_actions: int) -> jax.Arr
 
 
 def _gripper_rows(key: jax.Array, code: int, camera: Camera, candidates, valid: jax.Array, pool_fn, pool_size: int,
-                  label_fn, params: LabelParams) -> ImageRows:
+                  label_fn, params: LabelParams, priority: jax.Array | None = None) -> ImageRows:
   """The A labelled actions of one gripper: tau's choice, its 3-D grasp, pose and reward.
 
   ``pool_fn()`` returns the supervisor's (image grasps (S,), eligible (S,)) and runs only when tau draws a
   supervisor action; ``label_fn(key, camera, image_grasp)`` returns (pose (4, 4), approach angle, RewardRecord).
+  With ``priority`` (a learned policy's scores of the candidates), candidate rows are `POLICY` rows.
   """
   k_tau = jax.random.split(key)[0]
   wanted = supervisor_draws(k_tau, params.policy)
   empty = (jax.tree.map(lambda a: jnp.zeros((pool_size,) + a.shape[1:], a.dtype), candidates),
            jnp.zeros((pool_size,), bool))
   pool, eligible = jax.lax.cond(jnp.any(wanted), pool_fn, lambda: empty)
-  source, index, ok = collection_actions(k_tau, valid, eligible, params.policy)
+  source, index, ok = collection_actions(k_tau, valid, eligible, params.policy, priority)
   chosen = _choose(source, index, candidates, pool)
   keys = _action_reward_keys(key, source.shape[0])
   pose, approach_angle, record = jax.vmap(label_fn, in_axes=(0, None, 0))(keys, camera, chosen)
@@ -171,12 +174,14 @@ def _gripper_rows(key: jax.Array, code: int, camera: Camera, candidates, valid: 
   return ImageRows(gripper=jnp.full((a,), code, jnp.int32), center=chosen.center, angle=chosen.angle,
                    grasp_depth=chosen.depth, approach_angle=approach_angle, grasp_pose=pose, reward=record.reward,
                    robust_probability=record.robust_probability, failure=record.failure,
-                   target_slot=record.target_slot, policy=source, ok=ok)
+                   target_slot=record.target_slot,
+                   policy=source if priority is None else jnp.where(source == CANDIDATE, POLICY, source), ok=ok)
 
 
 def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Camera, scene: HeapScene,
                 parallel_jaw_sets: sup.GraspSet, suction_sets: sup.GraspSet, params: LabelParams = LabelParams(),
-                rendered_depth: jax.Array | None = None, observed: jax.Array | None = None) -> ImageRows:
+                rendered_depth: jax.Array | None = None, observed: jax.Array | None = None,
+                policy_candidates: dict | None = None) -> ImageRows:
   """Samples, chooses and labels the actions of one image (see the module docstring).
 
   Args:
@@ -194,6 +199,10 @@ def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Ca
     observed: (H, W) bool pixels the sensor returned, when ``depth`` has its holes inpainted (as a policy's
       `dexjax.policy.Observation`): candidates come only from these (suction points, jaw contact edges), as
       from a policy's observation mask (default: every valid pixel of ``depth``).
+    policy_candidates: ``{'parallel_jaw' and/or 'suction': (grasps (C,), valid (C,), score (C,))}``, the grasps a
+      learned policy scored on this image (`dexjax.generate.on_policy.policy_candidates`, C >= A): that
+      gripper's candidate set instead of the sampler's, its ``params.policy.top_k`` highest-scored first, its
+      rows coded `POLICY` (default: the seed's sampled candidates for both).
 
   Returns:
     `ImageRows` with 2A rows: parallel jaws first.
@@ -202,8 +211,17 @@ def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Ca
   pick = pickable_mask(depth, camera, params.bin, params.policy.floor_clearance)
   if observed is not None:
     pick = pick & observed
-  pj_cands, pj_valid = sample_antipodal_image_grasps(k_pj, depth, camera, params.parallel_jaw_sampler, mask=pick)
-  su_cands, su_valid = sample_suction_image_grasps(k_su, depth, camera, params.suction_sampler, mask=pick)
+  policy_candidates = policy_candidates or {}
+  if 'parallel_jaw' in policy_candidates:
+    pj_cands, pj_valid, pj_priority = policy_candidates['parallel_jaw']
+  else:
+    pj_cands, pj_valid = sample_antipodal_image_grasps(k_pj, depth, camera, params.parallel_jaw_sampler, mask=pick)
+    pj_priority = None
+  if 'suction' in policy_candidates:
+    su_cands, su_valid, su_priority = policy_candidates['suction']
+  else:
+    su_cands, su_valid = sample_suction_image_grasps(k_su, depth, camera, params.suction_sampler, mask=pick)
+    su_priority = None
 
   def pj_pool():
     return sup.parallel_jaw_supervisor_candidates(parallel_jaw_sets, scene, params.bin, camera, segmask,
@@ -227,9 +245,10 @@ def label_image(key: jax.Array, depth: jax.Array, segmask: jax.Array, camera: Ca
     return suction_pose(grasp), g.approach_angle, record
 
   pool_size = parallel_jaw_sets.valid.size
-  pj = _gripper_rows(k_rows_pj, PARALLEL_JAW, camera, pj_cands, pj_valid, pj_pool, pool_size, pj_label, params)
+  pj = _gripper_rows(k_rows_pj, PARALLEL_JAW, camera, pj_cands, pj_valid, pj_pool, pool_size, pj_label, params,
+                     pj_priority)
   su = _gripper_rows(k_rows_su, SUCTION, camera, su_cands, su_valid, su_pool, suction_sets.valid.size, su_label,
-                     params)
+                     params, su_priority)
   return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pj, su)
 
 

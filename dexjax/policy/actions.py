@@ -31,6 +31,8 @@ class PolicySamples:
     depth: (R, N) gripper depth, metres.
     quality: (R, N) score of each grasp (-inf where invalid).
     valid: (R, N) bool; sets smaller than N are padded with invalid entries.
+    width: (R, N) jaw opening, metres (0 for suction grasps).
+    approach_angle: (R, N) suction approach angle psi from the optical axis, radians (0 for jaw grasps).
   """
 
   center: jax.Array
@@ -38,6 +40,8 @@ class PolicySamples:
   depth: jax.Array
   quality: jax.Array
   valid: jax.Array
+  width: jax.Array
+  approach_angle: jax.Array
 
 
 @struct.dataclass
@@ -118,8 +122,10 @@ def best_action(actions: list[GraspAction]) -> tuple[GraspAction, jax.Array]:
 
 def samples_of(grasps, quality: jax.Array, valid: jax.Array) -> PolicySamples:
   """One round (R = 1) of N scored image grasps (leading axis N) as `PolicySamples`."""
+  zeros = jnp.zeros_like(grasps.depth)
   return PolicySamples(center=grasps.center[None], angle=grasps.angle[None], depth=grasps.depth[None],
-                       quality=quality[None], valid=valid[None])
+                       quality=quality[None], valid=valid[None], width=getattr(grasps, 'width', zeros)[None],
+                       approach_angle=getattr(grasps, 'approach_angle', zeros)[None])
 
 
 def pad_samples(samples: PolicySamples, rounds: int, size: int) -> PolicySamples:
@@ -127,7 +133,8 @@ def pad_samples(samples: PolicySamples, rounds: int, size: int) -> PolicySamples
   r, n = samples.valid.shape
   pad = lambda x, fill: jnp.pad(x, [(0, rounds - r), (0, size - n)] + [(0, 0)] * (x.ndim - 2), constant_values=fill)
   return PolicySamples(center=pad(samples.center, 0.0), angle=pad(samples.angle, 0.0), depth=pad(samples.depth, 0.0),
-                       quality=pad(samples.quality, -jnp.inf), valid=pad(samples.valid, False))
+                       quality=pad(samples.quality, -jnp.inf), valid=pad(samples.valid, False),
+                       width=pad(samples.width, 0.0), approach_angle=pad(samples.approach_angle, 0.0))
 
 
 __all__ = ['GraspAction', 'PolicySamples', 'action_from_grasp', 'best_action', 'pad_samples', 'samples_of',
