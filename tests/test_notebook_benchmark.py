@@ -18,4 +18,4 @@ def test_benchmark_notebook(run_notebook):
   assert all(r["verdicts"].keys() == {"analytic", "physics"} for r in records)
   assert "reliability" in run.stdout().lower()  # the printed table
   assert "supervisor (privileged): cleared" in run.stdout()
-  assert run.images() == 3  # the three figures, drawn by the notebook's backend (dexjax leaves it alone)
+  assert run.images() == 4  # the four figures, drawn by the notebook's backend (dexjax leaves it alone)

@@ -53,15 +53,15 @@ _label = jax.jit(label_image)
 _STAGES = ('settle', 'render', 'label', 'write')
 
 
-def policy_depth(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-  """(the depth a policy plans on, the pixels the sensor returned or None) of a sensor image (H, W) float32
-  metres: holes (NaN, inf, <= 0; `dexjax.render.noise.dropout`) inpainted as `dexjax.policy.prepare_observation`
-  does, (H, W) bool returns; an image without holes comes back as it is, with None."""
+def policy_depth(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+  """(the depth a policy plans on, the pixels the sensor returned) of a sensor image (H, W) float32 metres:
+  holes (NaN, inf, <= 0; `dexjax.render.noise.dropout`) inpainted as `dexjax.policy.prepare_observation` does,
+  (H, W) bool returns; an image without holes comes back as it is (every pixel returned)."""
   from dexjax.policy.preprocess import inpaint_depth  # pylint: disable=g-import-not-at-top  (loads the policies)
   depth = np.asarray(depth, np.float32)
   observed = np.isfinite(depth) & (depth > 0)
   if observed.all():
-    return depth, None
+    return depth, observed
   return np.asarray(inpaint_depth(depth), np.float32), observed
 
 
@@ -206,9 +206,10 @@ class ShardGenerator:
     camera = run_camera(k_camera, config)
     rendered = self.renderer.render(render_scene, camera)
     depth = noisy_depth(k_noise, rendered.depth, config.noise)
-    observed = None
-    if config.dataset.inpaint_holes:
+    if config.dataset.inpaint_holes:  # the labeller's one compiled form takes the returned pixels (all, mostly)
       depth, observed = policy_depth(depth)
+    else:
+      observed = np.ones(np.shape(depth), bool)
     stats['seconds']['render'] += time.perf_counter() - clock
     clock = time.perf_counter()
     out: ImageRows = _label(k_label, jnp.asarray(depth), jnp.asarray(rendered.mask), camera, scene, pj_sets,
