@@ -38,6 +38,7 @@ import math
 import sys
 
 from dexjax.cli import FAILURE_EXIT, OK_EXIT, check_output_dir, command
+from dexjax.policy.scorers import GRIPPERS
 
 _POLICIES = ('ambidextrous', 'parallel_jaw', 'suction', 'ranking', 'random', 'suction_heuristic',
              'composite_heuristic', 'supervisor')
@@ -136,7 +137,7 @@ def format_table(results: dict) -> str:
   for name, e in results['policies'].items():
     for judge, choice in e.get('at_choice', {}).items():
       p = choice['precision']
-      grippers = [f"{_number(p[g]['precision'], '.2f'):4s} ({p[g]['chosen']:3d})" for g in ('parallel_jaw', 'suction')]
+      grippers = [f"{_number(p[g]['precision'], '.2f'):4s} ({p[g]['chosen']:3d})" for g in GRIPPERS]
       rows.append(f"{name:22s} {judge:9s} {grippers[0]:>20s} {grippers[1]:>12s}   "
                   f"{_number(p['all']['precision'], '.2f'):5s}  {_number(p['all']['mean_q'], '.2f'):6s}  "
                   f"{_number(choice['calibration']['ece'], '.3f')}")

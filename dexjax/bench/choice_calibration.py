@@ -14,8 +14,7 @@ benchmark's attempt records (`dexjax.bench.trial`), each a chosen grasp with the
   ECE = sum_b n_b / n |mean q_b - success_b| (Naeini et al. 2015; Guo et al. 2017).
 
 The analytic judge's verdict is the labels' definition of success (what a GQ-CNN is trained to predict), so its
-calibration measures the network; the physics judge's measures the network and the labels together. Plain
-Python (no NumPy), like `dexjax.bench.picking_metrics`.
+calibration measures the network; the physics judge's measures the network and the labels together.
 """
 
 from __future__ import annotations
@@ -25,14 +24,13 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from dexjax.bench.picking_metrics import wilson_interval
+from dexjax.policy.scorers import GRIPPERS
 
 #: Equal-width bins of the predicted probability in the calibration curve (Guo et al. 2017 use 15; with a few
 #: hundred attempts per policy, 10 keeps most bins populated).
 CALIBRATION_BINS = 10
 # Bins are [low, high): a q stored in float32 a hair below an edge (0.7 is 0.69999999) belongs above it.
 _EDGE = 1e-6
-#: The grippers of a record's ``gripper`` field (`dexjax.policy.actions.GRIPPERS`, not imported: plain Python).
-GRIPPERS = ('parallel_jaw', 'suction')
 
 
 def _judged(records: Iterable[Mapping[str, Any]], judge: str) -> list[Mapping[str, Any]]:
@@ -106,4 +104,4 @@ def choice_summary(records: Iterable[Mapping[str, Any]], judges: Sequence[str] =
           for judge in judges if _judged(records, judge)}
 
 
-__all__ = ['CALIBRATION_BINS', 'GRIPPERS', 'calibration', 'choice_summary', 'precision_at_choice']
+__all__ = ['CALIBRATION_BINS', 'calibration', 'choice_summary', 'precision_at_choice']

@@ -21,6 +21,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from dexjax.grippers import STANDARD_GRAVITY, SUCTION_PAYLOAD_KG, SUCTION_SAFETY_FACTOR
+from dexjax.quality.robust import REWARD_THRESHOLD
 
 Z_95 = 1.959963984540054
 """The standard normal quantile of a two-sided 95 % interval."""
@@ -126,9 +127,8 @@ class MotionModel:
             + fast(math.hypot(self.transport_distance, self.approach_height - self.lift_height)))
 
 
-CONFIDENT = 0.5
-"""A predicted probability above this is a grasp the policy expects to succeed: the reward's threshold
-(`dexjax.quality.REWARD_THRESHOLD`, not imported: this module is plain Python)."""
+CONFIDENT = REWARD_THRESHOLD
+"""A predicted probability above this is a grasp the policy expects to succeed: the reward's threshold."""
 
 
 def _agreement(records: Sequence[Mapping[str, Any]]) -> tuple[float, int]:

@@ -21,9 +21,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from dexjax.policy.actions import PolicySamples
+from dexjax.policy.scorers import GRIPPERS, PARALLEL_JAW, SUCTION
 from dexjax.sampling.image_grasps import ImageParallelJawGrasp, ImageSuctionGrasp
-
-SUCTION = 'suction'
 
 
 def policy_candidates(samples: PolicySamples, gripper: str):
@@ -42,10 +41,10 @@ def policy_candidates(samples: PolicySamples, gripper: str):
   score = jnp.where(valid, flat(samples.quality), -jnp.inf).astype(jnp.float32)
   if gripper == SUCTION:
     grasps = ImageSuctionGrasp(center=center, angle=angle, depth=depth, approach_angle=flat(samples.approach_angle))
-  elif gripper == 'parallel_jaw':
+  elif gripper == PARALLEL_JAW:
     grasps = ImageParallelJawGrasp(center=center, angle=angle, depth=depth, width=flat(samples.width))
   else:
-    raise ValueError(f"policy_candidates: gripper: expected 'parallel_jaw' or 'suction', got {gripper!r}")
+    raise ValueError(f'policy_candidates: gripper: expected one of {GRIPPERS}, got {gripper!r}')
   return grasps, valid, score
 
 
