@@ -2,6 +2,7 @@
 
   python -m dexjax.generate --config configs/dexnet4.yaml --out DIR --num-images N
       [--objects SOURCE ...] [--gripper-config FILE] [--camera-config FILE] [--seed S]
+      [--collection-policy tau|on_policy] [--model RUN]
       [--shard i/N] [--workers W] [--backend serial|process|ray] [--ray-address ADDR]
       [--cache-dir DIR] [--no-preview] [--verify] [--overwrite] [--json]
   python -m dexjax.generate --relabel SRC --num-samples M --out DIR [--config FILE] [--cache-dir DIR] [--json]
@@ -11,6 +12,10 @@ positive rate and failure reasons per gripper, rows per second). Rerun the same 
 DIR must be new, empty or a run of this command: files it did not write are never replaced (``--overwrite``
 lifts this). Exit code 0 on success, 1 when some shards failed (the others are written), 2 for bad input
 (docs/errors.md).
+
+With ``--collection-policy on_policy --model RUN`` the candidates labelled are the grasps the learned policy of
+training run RUN scores on each image (its CEM of both grippers; on-policy dataset synthesis,
+docs/generate.md), not the seed's uniform ones.
 
 With ``--relabel SRC`` it writes run SRC's shards again with every reward drawn with M = ``--num-samples``
 Monte-Carlo draws (the same heaps, images and grasps; ``--config`` is the file SRC was made with), resumably:
@@ -40,6 +45,11 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--camera-config', help='camera file: a YAML of camera-distribution ranges, or intrinsics / a '
                                          'posed camera (JSON, ROS CameraInfo JSON/YAML)')
   p.add_argument('--seed', type=int, help='run seed (replaces the config\'s)')
+  p.add_argument('--collection-policy', choices=('tau', 'on_policy'),
+                 help="which policy proposes the candidates: the seed's uniform ones (tau) or a learned policy's "
+                      "(on_policy, with --model); replaces the config's collection.policy")
+  p.add_argument('--model', metavar='RUN', help='on_policy: the collecting policy\'s GQ-CNNs (a training run, saved '
+                                                'model or model file); replaces the config\'s collection.model')
   p.add_argument('--shard', default='0/1', metavar='i/N', help='write only the shards with index %% N == i')
   p.add_argument('--workers', type=int, default=1, help='parallel workers (default 1)')
   p.add_argument('--backend', choices=('serial', 'process', 'ray'), default='process',
@@ -74,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
   assignment = parse_shard_assignment(args.shard)
   check_run_dir(args.out, overwrite=args.overwrite)  # before the configs: a wrong --out fails at once
   config = load_generate_config(args.config, gripper_config=args.gripper_config, camera_config=args.camera_config,
-                                objects=args.objects, seed=args.seed)
+                                objects=args.objects, seed=args.seed,
+                                collection_policy=args.collection_policy, model=args.model)
   validate_generate_config(config, args.config or 'the default config')  # fields that constrain each other
   summary = generate_dataset(config, args.out, args.num_images, assignment=assignment, backend=args.backend,
                              workers=args.workers, ray_address=args.ray_address, cache_dir=args.cache_dir,
@@ -93,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
   return 1 if summary['shards']['failed'] else 0
 
 
-_GENERATION_ONLY = ('objects', 'gripper_config', 'camera_config', 'seed', 'num_images')
+_GENERATION_ONLY = ('objects', 'gripper_config', 'camera_config', 'seed', 'num_images', 'collection_policy', 'model')
 
 
 def _relabel(args: argparse.Namespace) -> int:

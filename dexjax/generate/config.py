@@ -75,6 +75,32 @@ class DatasetConfig:
   inpaint_holes: bool = True
 
 
+COLLECTION_POLICIES = ('tau', 'on_policy')
+PRETRAINED_MODELS = 'pretrained'  # dexjax.models.PRETRAINED: the shipped GQ-CNNs, a name and not a path
+CEM_PRESETS = ('seed', 'gqcnn')  # dexjax.policy.presets.CEM_PRESETS (not imported: it loads the policies)
+
+
+@dataclasses.dataclass(frozen=True)
+class CollectionConfig:
+  """Which policy proposes the candidate actions that tau labels (``policy``, below).
+
+  Attributes:
+    policy: ``'tau'``: the seed's candidates, uniform on the image sampler's set; ``'on_policy'``: the grasps a
+      learned policy scores on the image (`dexjax.generate.on_policy`: every CEM round of each gripper the
+      models cover, ``policy.top_k`` of the highest-scored first), mixed with the supervisor's as tau mixes them.
+    model: ``on_policy``: the learned policy's GQ-CNNs (a training run, saved model or model file; `dexjax.models.
+      load_models`), an absolute path once loaded; ``'pretrained'``: the shipped models.
+    model_digest: the models' content digest (`dexjax.generate.on_policy.model_digest`), set when the config is
+      loaded: the fingerprint covers it, not the path.
+    cem: the collecting policy's CEM preset, ``'seed'`` or ``'gqcnn'`` (`dexjax.policy.cem_params`).
+  """
+
+  policy: str = 'tau'
+  model: str = ''
+  model_digest: str = ''
+  cem: str = 'seed'
+
+
 @dataclasses.dataclass(frozen=True)
 class GenerateConfig:
   """Every parameter of a generation run (defaults: Dex-Net 4.0; see the module docstring).
@@ -102,6 +128,7 @@ class GenerateConfig:
   reward: RewardParams = RewardParams()
   supervisor: SupervisorParams = SupervisorParams()
   policy: PolicyParams = PolicyParams()
+  collection: CollectionConfig = CollectionConfig()
 
   @property
   def bin(self) -> Bin:
@@ -110,7 +137,7 @@ class GenerateConfig:
 
 _GRIPPER_SECTIONS = ('grippers', 'perturbations', 'quality')  # configs/quality.yaml's layout
 _TOP = ('seed', 'objects', 'dataset', 'heap', 'bin', 'settle', 'camera', 'render', 'noise', 'samplers', 'reward',
-        'supervisor', 'policy') + _GRIPPER_SECTIONS
+        'supervisor', 'policy', 'collection') + _GRIPPER_SECTIONS
 _SAMPLERS = ('parallel_jaw', 'suction')
 _REWARD_FIELDS = ('suction_contact_distance', 'threshold', 'num_samples')
 
@@ -206,7 +233,51 @@ def config_from_dict(data: Mapping[str, Any], source: str = '<config>') -> Gener
                           minimum=0),
       policy=_checked('policy', override(c.policy, _section(data, 'policy', source), source=source,
                                          section='policy', minimum=0), source))
+  config = _collection(config, _section(data, 'collection', source), source)
   return validate_generate_config(_camera(_tied(config), _section(data, 'camera', source), source), source)
+
+
+def _collection(config: GenerateConfig, values: dict[str, Any] | None, source: str) -> GenerateConfig:
+  """Applies the ``collection`` section (its ``model`` relative to the config's folder) and loads the model."""
+  values = dict(values or {})
+  if 'model_digest' in values:
+    raise ConfigError(source, 'collection.model_digest', 'set from the model when the config is loaded; remove it')
+  if values.get('model') and values['model'] != PRETRAINED_MODELS:
+    values['model'] = os.path.join(os.path.dirname(os.path.abspath(source)), str(values['model']))
+  collection = override(config.collection, values, source=source, section='collection')
+  return with_collection(config, collection.policy, collection.model or None, collection.cem, source=source)
+
+
+def with_collection(config: GenerateConfig, policy: str | None = None, model: str | os.PathLike[str] | None = None,
+                    cem: str | None = None, *, source: str = '<arguments>') -> GenerateConfig:
+  """``config`` collecting with ``policy`` (`COLLECTION_POLICIES`), the learned policy's ``model`` (loaded here for
+  its digest) and CEM preset ``cem``; None keeps a field.
+
+  Raises:
+    ConfigError: an unknown policy or preset, ``on_policy`` without a model, a model with ``tau``.
+    FileNotFoundError, ValueError: nothing loadable at ``model`` (`dexjax.models.load_models`).
+  """
+  c = config.collection
+  policy = c.policy if policy is None else policy
+  if model is not None:
+    model = os.fspath(model) if os.fspath(model) == PRETRAINED_MODELS else os.path.abspath(os.fspath(model))
+  model = c.model if model is None else model
+  cem = c.cem if cem is None else cem
+  if policy not in COLLECTION_POLICIES:
+    raise ConfigError(source, 'collection.policy', f'expected one of {COLLECTION_POLICIES}, got {policy!r}')
+  if cem not in CEM_PRESETS:
+    raise ConfigError(source, 'collection.cem', f'expected one of {CEM_PRESETS}, got {cem!r}')
+  if policy == 'tau':
+    if model:
+      raise ConfigError(source, 'collection.model', "expected none with policy 'tau' (the seed's candidates need "
+                                                    f"no model), got {model!r}; or set policy: on_policy")
+    return dataclasses.replace(config, collection=CollectionConfig(cem=cem))
+  if not model:
+    raise ConfigError(source, 'collection.model', "expected the learned policy's GQ-CNNs with policy 'on_policy' "
+                                                  '(a training run, saved model or model file; --model RUN)')
+  from dexjax.generate.on_policy import collection_models  # pylint: disable=g-import-not-at-top (flax/orbax)
+  _, digest = collection_models(model)
+  return dataclasses.replace(config, collection=CollectionConfig(policy, model, digest, cem))
 
 
 def _tied(config: GenerateConfig) -> GenerateConfig:
@@ -227,7 +298,9 @@ def with_grippers(config: GenerateConfig, path: str | os.PathLike[str]) -> Gener
 def load_generate_config(path: str | os.PathLike[str] | None = None, *,
                          gripper_config: str | os.PathLike[str] | None = None,
                          camera_config: str | os.PathLike[str] | None = None,
-                         objects: list[str] | None = None, seed: int | None = None) -> GenerateConfig:
+                         objects: list[str] | None = None, seed: int | None = None,
+                         collection_policy: str | None = None,
+                         model: str | os.PathLike[str] | None = None) -> GenerateConfig:
   """The run's config: defaults, then the YAML file ``path``, then the optional overrides.
 
   Args:
@@ -238,6 +311,7 @@ def load_generate_config(path: str | os.PathLike[str] | None = None, *,
       ROS CameraInfo); see `dexjax.generate.cameras`.
     objects: object sources replacing ``objects.sources``.
     seed: replaces ``seed``.
+    collection_policy, model: replace ``collection.policy`` and ``collection.model`` (`with_collection`).
   """
   config = config_from_dict(load_yaml(path), os.fspath(path)) if path is not None else GenerateConfig()
   if gripper_config is not None:
@@ -251,6 +325,9 @@ def load_generate_config(path: str | os.PathLike[str] | None = None, *,
     if seed < 0:
       raise ConfigError('--seed', 'seed', f'expected an integer >= 0, got {seed}')
     config = dataclasses.replace(config, seed=seed)
+  if collection_policy is not None or model is not None:
+    policy = collection_policy if collection_policy is not None else ('on_policy' if model else None)
+    config = with_collection(config, policy, model, source='--collection-policy / --model')
   return config
 
 
@@ -265,7 +342,8 @@ def content_fields(record: Mapping[str, Any]) -> dict[str, Any]:
   shard's content, JSON-ready: without the seed and the settling threads, with the settling chunks and waves at
   fixed values (`_SPEED_ONLY`), and without the sleep fields when ``settle.sleep`` is off (or absent): the
   physics of datasets made before sleeping objects (2026-12-04), which therefore keep their fingerprint; nor
-  ``policy.top_k`` when it is 0 (it orders only a learned policy's candidates; the seed's tau has none)."""
+  ``policy.top_k`` when it is 0 (it orders only a learned policy's candidates; the seed's tau has none); the
+  ``collection`` section only when it collects on-policy, then with the model's digest and not its path."""
   data = plain_json(record)
   data.pop('seed', None)
   settle = data['settle']
@@ -276,6 +354,9 @@ def content_fields(record: Mapping[str, Any]) -> dict[str, Any]:
     settle.pop('sleep_tolerance', None)
   if not data.get('policy', {}).get('top_k'):
     data.get('policy', {}).pop('top_k', None)
+  collection = data.pop('collection', None) or {}
+  if collection.get('policy', 'tau') != 'tau':
+    data['collection'] = {k: v for k, v in collection.items() if k != 'model'}
   return data
 
 

@@ -11,7 +11,10 @@ a depth renderer, the jitted labeller); `ShardGenerator.generate` makes the cont
 * a heap whose simulation diverged is dropped (its images are not made; counted in the stats); objects
   that left the bin are removed from the heap before rendering and labelling;
 * image j: camera, render (depth and slot mask), optional sensor noise on the depth the policy sees (its
-  holes inpainted as a policy's observation, ``dataset.inpaint_holes``: `policy_depth`), then `label_image` on
+  holes inpainted as a policy's observation, ``dataset.inpaint_holes``: `policy_depth`); collecting on-policy
+  (``collection.policy``), the learned policy plans on that depth with the objects' rendered pixels that returned
+  as its mask (a perfect segmentation) and its scored grasps become the candidates (`dexjax.generate.on_policy`,
+  its key from a stream of its own); then `label_image` on
   the heap's `HeapScene` (settled poses, the state's per-object friction and each object's simulated mass, which
   the image also stores as ``object_friction`` and ``object_mass``; the labels draw each object's mass about its
   own, labels version 8); rows that exist (``ok``) are kept, in order.
@@ -40,9 +43,11 @@ from dexjax.generate import supervisor as sup
 from dexjax.generate.cameras import image_size, run_camera
 from dexjax.generate.config import GenerateConfig, fingerprint
 from dexjax.generate.labels import ImageRows, LabelParams, label_image
+from dexjax.generate.on_policy import collection_models, collection_policy, plan_candidates
 from dexjax.objects.folder import Rejection
 from dexjax.objects.sets import NoObjectsError, usable_objects  # re-exported: callers import them from here too
 from dexjax.quality.heap_reward import HeapScene, heap_scene, scene_slot_ids
+from dexjax.policy.observation import Observation
 from dexjax.render.noise import noisy_depth
 from dexjax.render.rendering import DepthRenderer, build_render_scene
 from dexjax.sim.bodies import heap_objects
@@ -50,7 +55,9 @@ from dexjax.sim.heap import sample_heap_states
 from dexjax.sim.settling import settle
 
 _label = jax.jit(label_image)
+_plan = jax.jit(plan_candidates)
 _STAGES = ('settle', 'render', 'label', 'write')
+_POLICY_STREAM = 0x9011C7  # folded into a shard's key: the on-policy plans' stream, apart from the four others
 
 
 def policy_depth(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -87,14 +94,21 @@ def supervisor_sets(config: GenerateConfig, models: Sequence[Any], cache_dir: st
                                cache_dir=os.path.join(cache_dir, 'supervisor') if cache_dir is not None else None)
 
 
-def _empty_stats() -> dict[str, Any]:
+def _empty_stats(config: GenerateConfig) -> dict[str, Any]:
+  stages = _STAGES + (('plan',) if config.collection.policy != 'tau' else ())
   return {'heaps': 0, 'diverged_heaps': 0, 'objects_left_bin': 0, 'images': 0,
-          'seconds': {stage: 0.0 for stage in _STAGES}}
+          'seconds': {stage: 0.0 for stage in stages}}
 
 
 def _shard_keys(seed: int, index: int) -> jax.Array:
   """Shard ``index``'s four keys: heaps, cameras, sensor noise, labels (image j folds j into each)."""
   return jax.random.split(jax.random.key(shard_seed(seed, index)), 4)
+
+
+def _policy_key(seed: int, index: int, image_index: int) -> jax.Array:
+  """The key of the learned policy's plan on image ``image_index`` of shard ``index`` (on-policy collection)."""
+  stream = jax.random.fold_in(jax.random.key(shard_seed(seed, index)), _POLICY_STREAM)
+  return jax.random.fold_in(stream, image_index)
 
 
 def image_label_key(seed: int, shard_index: int, image_index: int) -> jax.Array:
@@ -129,6 +143,11 @@ class ShardGenerator:
     self.renderer = DepthRenderer(width, height, backend=config.dataset.render_backend, settings=config.render)
     self.fingerprint = fingerprint(config)
     self.shards_made = 0
+    self.collector = None  # the learned policy of on-policy collection, loaded as the config recorded it
+    if config.collection.policy == 'on_policy':
+      c = config.collection
+      models, _ = collection_models(c.model, c.model_digest)
+      self.collector = collection_policy(models, c.cem)
 
   def close(self) -> None:
     self.renderer.close()
@@ -159,7 +178,7 @@ class ShardGenerator:
 
   def generate(self, index: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """The images, rows and stats of shard ``index`` (stats: counts and per-stage seconds; not stored)."""
-    config, stats = self.config, _empty_stats()
+    config, stats = self.config, _empty_stats(self.config)
     k_heap, k_camera, k_noise, k_label = _shard_keys(config.seed, index)
     clock = time.perf_counter()
     states = sample_heap_states(k_heap, self.heaps_per_shard, len(self.heap_objects), config.heap)
@@ -211,9 +230,15 @@ class ShardGenerator:
     else:
       observed = np.ones(np.shape(depth), bool)
     stats['seconds']['render'] += time.perf_counter() - clock
+    candidates = None
+    if self.collector is not None:
+      clock = time.perf_counter()
+      obs = Observation(depth=jnp.asarray(depth), mask=jnp.asarray((rendered.mask >= 0) & observed), camera=camera)
+      candidates = _plan(_policy_key(config.seed, index, j), obs, self.collector)
+      stats['seconds']['plan'] += time.perf_counter() - clock
     clock = time.perf_counter()
     out: ImageRows = _label(k_label, jnp.asarray(depth), jnp.asarray(rendered.mask), camera, scene, pj_sets,
-                            su_sets, self.params, jnp.asarray(rendered.depth), observed)
+                            su_sets, self.params, jnp.asarray(rendered.depth), observed, candidates)
     out = jax.tree.map(np.asarray, out)
     stats['seconds']['label'] += time.perf_counter() - clock
     stats['images'] += 1

@@ -269,6 +269,8 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
     prepare()
   stats, heap_counts = RowStats(), {'heaps': 0, 'diverged_heaps': 0, 'objects_left_bin': 0, 'images': 0}
   stage_seconds = {'settle': 0.0, 'render': 0.0, 'label': 0.0, 'write': 0.0}
+  if config.collection.policy != 'tau':
+    stage_seconds['plan'] = 0.0  # the learned policy's plans (on-policy collection)
 
   workers_seen: dict[int, list[float]] = {}  # pid -> [warm rows, warm seconds]
 
@@ -283,7 +285,7 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
     for k in heap_counts:
       heap_counts[k] += result[k]
     for k, v in result['seconds'].items():
-      stage_seconds[k] += v
+      stage_seconds[k] = stage_seconds.get(k, 0.0) + v
 
   clock = time.perf_counter()
   task = functools.partial(_shard_task, config=config, out_dir=os.fspath(out), cache_dir=cache_dir)

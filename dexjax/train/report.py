@@ -69,7 +69,10 @@ def plot_curves(out_dir: str | os.PathLike) -> Path | None:
     ax.set_title(title)
     ax.set_xlabel('epoch')
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+      ax.legend(fontsize=7)
+    else:  # e.g. average precision of a validation split without a positive
+      ax.text(0.5, 0.5, 'not defined yet', ha='center', va='center', transform=ax.transAxes, color='0.5')
   path = Path(out_dir) / CURVES_FILE
   fig.savefig(path, dpi=110)
   return path

@@ -1,0 +1,114 @@
+"""On-policy dataset synthesis end to end, with tiny settings: one round collected by the shipped policy and
+trained from it (`dexjax.train.rounds`), its rows the grasps that policy scored, the round resumable."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dexjax.config import ConfigError
+from dexjax.data import list_shards
+from dexjax.data.shards import read_shard
+from dexjax.generate import pipeline
+from dexjax.generate.config import config_from_dict, fingerprint, with_collection
+from dexjax.generate.on_policy import collection_models, collection_policy, model_digest
+from dexjax.generate.policy import POLICY, SUPERVISOR
+from dexjax.policy.observation import Observation
+from dexjax.render.camera import Camera, Intrinsics
+from dexjax.train.config import CheckpointConfig, LoopConfig, TrainConfig
+from dexjax.train.rounds import ROUNDS_FILE, round_configs, round_dirs, run_rounds
+from test_generate import SMALL
+
+GENERATE = config_from_dict({**SMALL, 'policy': {'actions_per_gripper': 12, 'epsilon': 0.25, 'top_k': 4}},
+                            'small.yaml')
+TRAIN = TrainConfig(loop=LoopConfig(epochs=1, batch_size=8, eval_batch_size=64, normalization_rows=200),
+                    checkpoint=CheckpointConfig(every_steps=4, keep=1),
+                    split=dataclasses.replace(TrainConfig().split, val_fraction=0.25))
+
+
+@pytest.fixture(scope='module')
+def one_round(tmp_path_factory):
+  """(rounds directory, records, log lines): one round collected on-policy with the shipped models."""
+  out, cache = tmp_path_factory.mktemp('rounds'), str(tmp_path_factory.mktemp('rounds_cache'))
+  lines = []
+  records = run_rounds(GENERATE, TRAIN, out, 1, 4, init='pretrained', cache_dir=cache, progress=False,
+                       log=lines.append)
+  return out, records, lines, cache
+
+
+def test_a_round_collects_with_the_policy_and_fine_tunes_it(one_round):
+  out, records, lines, _ = one_round
+  data_dir, train_dir = round_dirs(out, 0)
+  assert [(r['round'], r['step']) for r in records] == [(0, 'collect'), (0, 'train')]
+  assert records[0]['collection']['policy'] == 'on_policy' and records[1]['init'] == 'pretrained'
+  assert (train_dir / 'summary.json').is_file() and (train_dir / 'parallel_jaw' / 'best').is_dir()
+  # The round's data is tied to the weights it was collected with: the run's config holds their digest.
+  saved = json.loads((data_dir / 'config.json').read_text())['config']['collection']
+  assert saved['model_digest'] == model_digest(collection_models('pretrained')[0])
+  codes = np.concatenate([read_shard(p).rows['policy'] for p in list_shards(data_dir)])
+  assert set(np.unique(codes)) <= {POLICY, SUPERVISOR} and (codes == POLICY).mean() > 0.5
+  # The next round would collect with this round's models and fine-tune them.
+  gen, tr = round_configs(GENERATE, TRAIN, out, 1)
+  assert gen.collection.model == str(train_dir) and tr.init == str(train_dir) and gen.seed == GENERATE.seed + 1
+  assert fingerprint(gen) != fingerprint(GENERATE)
+
+
+def test_a_finished_round_is_skipped_when_rerun(one_round):
+  out, records, _, cache = one_round
+  before = (out / ROUNDS_FILE).read_text()
+  lines = []
+  again = run_rounds(GENERATE, TRAIN, out, 1, 4, init='pretrained', cache_dir=cache, progress=False,
+                     log=lines.append)
+  assert again == records and (out / ROUNDS_FILE).read_text() == before
+  assert lines == [f'round 0: done ({round_dirs(out, 0)[1]})']
+
+
+def test_policy_rows_are_the_grasps_the_policy_scored(one_round):
+  """Every row coded POLICY is one of the grasps the collecting CEM scored on its image (replanned with the
+  image's own key), and the top_k first rows of each gripper are its highest-scored ones."""
+  out, _, _, _ = one_round
+  data_dir = round_dirs(out, 0)[0]
+  gen = round_configs(GENERATE, TRAIN, out, 0, 'pretrained')[0]
+  policy = collection_policy(collection_models('pretrained')[0])
+  shard = read_shard(list_shards(data_dir)[0])
+  images, rows = shard.images, shard.rows
+  checked = 0
+  for j in range(len(images['depth'])):
+    fx, fy, cx, cy = images['camera_intrinsics'][j]
+    h, w = images['depth'][j].shape
+    camera = Camera(Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=w, height=h),
+                    jnp.asarray(images['camera_rotation'][j]), jnp.asarray(images['camera_translation'][j]))
+    obs = Observation(depth=jnp.asarray(images['depth'][j]), mask=jnp.asarray(images['mask'][j] >= 0), camera=camera)
+    planned = pipeline._plan(pipeline._policy_key(gen.seed, 0, j), obs, policy)  # pylint: disable=protected-access
+    for g, name in enumerate(('parallel_jaw', 'suction')):
+      grasps, valid, score = jax.tree.map(np.asarray, planned[name])
+      mine = (rows['image_index'] == j) & (rows['gripper'] == g)
+      for k in np.flatnonzero(mine & (rows['policy'] == POLICY)):
+        hit = valid & (np.abs(grasps.center - rows['center'][k]).max(-1) < 1e-3) & (
+            np.abs(grasps.depth - rows['grasp_depth'][k]) < 1e-5)
+        assert hit.any(), (j, name, rows['center'][k])
+        checked += 1
+      first = np.flatnonzero(mine)[:GENERATE.policy.top_k]
+      best = np.sort(score[valid])[::-1][:GENERATE.policy.top_k]
+      led = [score[valid & (np.abs(grasps.center - rows['center'][k]).max(-1) < 1e-3)].max() for k in first
+             if rows['policy'][k] == POLICY]
+      assert np.all(np.isin(np.round(led, 5), np.round(best, 5))), (j, name)
+  assert checked >= 20
+
+
+def test_collection_config_names_field_and_expected_value(tmp_path):
+  with pytest.raises(ConfigError, match=r"small.yaml: collection.model: expected the learned policy's GQ-CNNs"):
+    config_from_dict({**SMALL, 'collection': {'policy': 'on_policy'}}, 'small.yaml')
+  with pytest.raises(ConfigError, match=r"collection.policy: expected one of \('tau', 'on_policy'\), got 'greedy'"):
+    config_from_dict({**SMALL, 'collection': {'policy': 'greedy'}}, 'small.yaml')
+  with pytest.raises(ConfigError, match=r'collection.model_digest: set from the model'):
+    config_from_dict({**SMALL, 'collection': {'model_digest': 'abc'}}, 'small.yaml')
+  with pytest.raises(FileNotFoundError):
+    with_collection(GENERATE, 'on_policy', tmp_path / 'no_such_run')
+  # The seed's collection policy leaves the fingerprint as it was before the section existed.
+  assert fingerprint(with_collection(GENERATE, 'tau')) == fingerprint(GENERATE)
