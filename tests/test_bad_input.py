@@ -28,6 +28,7 @@ import trimesh
 from dexjax import cli
 from dexjax.config import ConfigError, validate_heap_distribution, validate_perturbations
 from dexjax.evaluate import main as evaluate_main
+from dexjax.rounds import main as rounds_main
 from dexjax.generate.__main__ import main as generate_main
 from dexjax.objects.__main__ import main as objects_main
 from dexjax.quality.__main__ import main as quality_main
@@ -78,7 +79,7 @@ def _never(*_, **__):
 
 
 @pytest.mark.parametrize('main', [quality_main, objects_main, sim_main, render_main, generate_main, train_main,
-                                  evaluate_main])
+                                  evaluate_main, rounds_main])
 def test_every_cli_reports_through_the_shared_helper(main):
   assert getattr(main, '__wrapped__', None) is not None  # dexjax.cli.command
 
@@ -289,6 +290,14 @@ def test_binary_empty_and_directory_inputs_name_the_file(files, tmp_path, capsys
   _bad(capsys, evaluate_main, ['--checkpoint', 'pretrained', '--data', tmp_path, '--resamples', '0'], '--resamples',
        '>= 1')
   _bad(capsys, objects_main, ['hulls', files['binary']], 'binary.bin', code=2)
+  _bad(capsys, rounds_main, ['--out', tmp_path / 'rounds', '--rounds', '0', '--images', '4'], '--rounds', '>= 1')
+  _bad(capsys, rounds_main, ['--generate-config', binary, '--out', tmp_path / 'rounds', '--rounds', '1', '--images',
+                             '4'], 'binary.bin', 'not a text file')
+  _bad(capsys, generate_main, ['--out', tmp_path / 'gen', '--num-images', '1', '--collection-policy', 'on_policy'],
+       'collection.model', "learned policy's GQ-CNNs")
+  _bad(capsys, generate_main, ['--out', tmp_path / 'gen', '--num-images', '1', '--model', tmp_path / 'no_run'],
+       'no_run')
+  assert not (tmp_path / 'rounds').exists()
   assert not (tmp_path / 'gen').exists() and not (tmp_path / 'run').exists() and not out.exists()
 
 

@@ -9,15 +9,16 @@ picture), `relabel` (a dataset's rows labelled again with new draws). The CLI is
 """
 
 from dexjax.generate.cameras import apply_camera_file, image_size, run_camera
-from dexjax.generate.config import (DatasetConfig, GenerateConfig, ObjectsConfig, config_from_dict, fingerprint,
-                                    load_generate_config, with_grippers)
+from dexjax.generate.config import (COLLECTION_POLICIES, CollectionConfig, DatasetConfig, GenerateConfig, ObjectsConfig,
+                                    config_from_dict, fingerprint, load_generate_config, with_collection,
+                                    with_grippers)
 from dexjax.generate.labels import (PARALLEL_JAW, SUCTION, ImageRows, LabelParams, label_image, pickable_mask,
                                     reward_keys)
 from dexjax.generate.parallel import RunResult, run_tasks
 from dexjax.generate.pipeline import (ShardGenerator, close_process_generators, generate_shard, image_label_key,
                                       label_params, supervisor_sets)
 from dexjax.generate.relabel import Relabelled, generation_reward_keys, relabel_shard, row_grasp
-from dexjax.generate.on_policy import policy_candidates
+from dexjax.generate.on_policy import collection_models, collection_policy, model_digest, plan_candidates, policy_candidates
 from dexjax.generate.policy import CANDIDATE, POLICY, SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
 from dexjax.generate.report import RowStats, format_summary, save_generation_png, summarize_rows
 from dexjax.generate.run import check_run_dir, generate_dataset, load_run_config, num_shards, warm_caches
@@ -27,14 +28,15 @@ from dexjax.generate.supervisor import (GraspSet, SupervisorParams, cached_grasp
 from dexjax.objects.sets import NoObjectsError, usable_objects
 
 __all__ = [
-  'CANDIDATE', 'PARALLEL_JAW', 'POLICY', 'SUCTION', 'SUPERVISOR', 'DatasetConfig', 'GenerateConfig', 'GraspSet',
+  'CANDIDATE', 'COLLECTION_POLICIES', 'CollectionConfig', 'PARALLEL_JAW', 'POLICY', 'SUCTION', 'SUPERVISOR', 'DatasetConfig', 'GenerateConfig', 'GraspSet',
   'ImageRows', 'LabelParams', 'NoObjectsError', 'ObjectsConfig', 'PolicyParams', 'Relabelled', 'RowStats',
   'RunResult', 'ShardGenerator', 'SupervisorParams', 'apply_camera_file', 'cached_grasp_sets', 'check_run_dir',
-  'close_process_generators', 'collection_actions', 'config_from_dict', 'fingerprint', 'format_summary',
+  'close_process_generators', 'collection_actions', 'collection_models', 'collection_policy', 'config_from_dict', 'fingerprint', 'format_summary',
   'generate_dataset', 'generate_shard', 'generation_reward_keys', 'heap_grasp_sets', 'image_label_key',
-  'image_size', 'label_image', 'label_params', 'load_generate_config', 'load_run_config', 'num_shards',
-  'parallel_jaw_grasp_set', 'parallel_jaw_supervisor_candidates', 'pickable_mask', 'policy_candidates',
+  'image_size', 'label_image', 'label_params', 'load_generate_config', 'load_run_config', 'model_digest', 'num_shards',
+  'parallel_jaw_grasp_set', 'parallel_jaw_supervisor_candidates', 'pickable_mask', 'plan_candidates',
+  'policy_candidates',
   'relabel_shard', 'reward_keys', 'row_grasp', 'run_camera', 'run_tasks', 'save_generation_png',
   'suction_grasp_set', 'suction_supervisor_candidates', 'summarize_rows', 'supervisor_draws', 'supervisor_sets',
-  'usable_objects', 'warm_caches', 'with_grippers',
+  'usable_objects', 'warm_caches', 'with_collection', 'with_grippers',
 ]

@@ -15,17 +15,18 @@ from dexjax.train.loop import Interrupted, check_trainable, final_state_params, 
 from dexjax.train.metrics import average_precision, bootstrap_intervals, classification_metrics
 from dexjax.train.report import plot_curves, read_records
 from dexjax.train.run import check_run_dir, quickstart_dataset, train_run
+from dexjax.train.rounds import ROUNDS_FILE, round_configs, round_dirs, run_rounds
 from dexjax.train.step import (OptimizerConfig, TrainState, create_state, cross_entropy, eval_logits,
                                learning_rate_schedule, make_optimizer, train_step)
 
 __all__ = [
-  'BEST_METRICS', 'CLASS_BALANCE', 'CheckpointConfig', 'Checkpointer', 'GripperStats', 'Interrupted', 'LoopConfig',
+  'BEST_METRICS', 'CLASS_BALANCE', 'ROUNDS_FILE', 'CheckpointConfig', 'Checkpointer', 'GripperStats', 'Interrupted', 'LoopConfig',
   'OptimizerConfig', 'QuickstartData', 'SplitConfig', 'TrainConfig', 'TrainState', 'average_precision',
   'bootstrap_intervals', 'predict_rows',
   'check_run_dir', 'check_trainable', 'classification_metrics', 'config_to_dict', 'create_state', 'cross_entropy', 'data_mesh', 'dataset_stats',
   'eval_batches', 'eval_logits', 'evaluate_model', 'final_state_params', 'gripper_examples', 'learning_rate_schedule',
   'label_probability', 'soft_labels',
   'load_train_config', 'make_optimizer', 'plot_curves', 'pose_vectors', 'quickstart_dataset', 'read_records',
-  'replicate', 'sample_examples', 'sgd_step', 'shard_batch', 'symmetrize', 'train_batches', 'train_config_from_dict', 'train_gripper',
+  'replicate', 'round_configs', 'round_dirs', 'run_rounds', 'sample_examples', 'sgd_step', 'shard_batch', 'symmetrize', 'train_batches', 'train_config_from_dict', 'train_gripper',
   'train_run', 'train_step',
 ]
