@@ -25,7 +25,6 @@ from dexjax.data import (GRIPPER_NAMES, IMAGE_SCHEMA, ROW_SCHEMA, iterate_rows, 
                          shard_path)
 from dexjax.generate.__main__ import main
 from dexjax.generate.config import GenerateConfig, config_from_dict, fingerprint, load_generate_config
-from dexjax.generate.labels import label_image
 from dexjax.generate.pipeline import ShardGenerator, label_params
 from dexjax.generate.relabel import generation_reward_keys, relabel_dataset, relabel_shard
 from dexjax.generate.on_policy import policy_candidates
@@ -227,33 +226,6 @@ def test_policy_candidates_are_every_round_of_the_plans_samples():
     assert np.all(np.isneginf(np.asarray(score)[~np.asarray(valid)]))
   with pytest.raises(ValueError, match='gripper'):
     policy_candidates(samples, 'vacuum')
-
-
-def test_a_policys_candidates_are_labelled_top_scored_first_through_the_pipeline(run, monkeypatch):
-  """label_image with policy candidates, inside a real shard: here the suction sampler's own candidates scored
-  by their column u (a stand-in for a network's score, checkable from the rows), top_k = 5. Per image, the
-  suction candidate rows are POLICY rows whose first five are the five highest-scored, in order; the jaw rows
-  stay the seed's; the supervisor keeps its share."""
-  import dexjax.generate.pipeline as pipeline  # pylint: disable=g-import-not-at-top
-  from dexjax.generate.policy import POLICY  # pylint: disable=g-import-not-at-top
-  from dexjax.sampling.image_samplers import sample_suction_image_grasps  # pylint: disable=g-import-not-at-top
-  config, _, cache, _ = run
-  config = dataclasses.replace(config, policy=config.policy.replace(top_k=5))
-
-  def with_policy(*args):
-    depth, camera, params = args[1], args[3], args[7]
-    grasps, valid = sample_suction_image_grasps(jax.random.key(9), depth, camera, params.suction_sampler)
-    return label_image(*args, policy_candidates={'suction': (grasps, valid, grasps.center[:, 0])})
-
-  monkeypatch.setattr(pipeline, '_label', jax.jit(with_policy))
-  with ShardGenerator(config, cache_dir=str(cache)) as generator:
-    _, rows, _ = generator.generate(0)
-  policy, gripper = rows['policy'], rows['gripper']
-  assert set(policy[gripper == 0]) <= {CANDIDATE, SUPERVISOR} and set(policy[gripper == 1]) <= {POLICY, SUPERVISOR}
-  for image in np.unique(rows['image_index']):
-    mine = (rows['image_index'] == image) & (gripper == 1) & (policy == POLICY)
-    u = rows['center'][mine, 0]
-    assert len(u) > 5 and np.all(np.diff(u[:5]) <= 0) and u[5:].max() <= u[4], u
 
 
 def test_run_writes_every_shard_with_valid_rows(run):
