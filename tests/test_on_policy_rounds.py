@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import yaml
 
 from dexjax.config import ConfigError
 from dexjax.data import list_shards
@@ -24,8 +25,8 @@ from dexjax.train.config import CheckpointConfig, LoopConfig, TrainConfig
 from dexjax.train.rounds import ROUNDS_FILE, round_configs, round_dirs, run_rounds
 from test_generate import SMALL
 
-GENERATE = config_from_dict({**SMALL, 'policy': {'actions_per_gripper': 12, 'epsilon': 0.25, 'top_k': 4}},
-                            'small.yaml')
+SMALL_ON_POLICY = {**SMALL, 'policy': {'actions_per_gripper': 12, 'epsilon': 0.25, 'top_k': 4}}
+GENERATE = config_from_dict(SMALL_ON_POLICY, 'small.yaml')
 TRAIN = TrainConfig(loop=LoopConfig(epochs=1, batch_size=8, eval_batch_size=64, normalization_rows=200),
                     checkpoint=CheckpointConfig(every_steps=4, keep=1),
                     split=dataclasses.replace(TrainConfig().split, val_fraction=0.25))
@@ -56,6 +57,19 @@ def test_a_round_collects_with_the_policy_and_fine_tunes_it(one_round):
   gen, tr = round_configs(GENERATE, TRAIN, out, 1)
   assert gen.collection.model == str(train_dir) and tr.init == str(train_dir) and gen.seed == GENERATE.seed + 1
   assert fingerprint(gen) != fingerprint(GENERATE)
+
+
+def test_a_round_is_relabelled_with_its_collection_recorded(one_round, tmp_path):
+  """Relabelling an on-policy run keeps its record: the collection (and so the fingerprint) of the run it came
+  from, without loading the model again."""
+  from dexjax.generate.run import load_run_config  # pylint: disable=g-import-not-at-top
+  out, _, _, _ = one_round
+  data_dir = round_dirs(out, 0)[0]
+  path = tmp_path / 'small.yaml'
+  path.write_text(yaml.safe_dump(SMALL_ON_POLICY))
+  config = load_run_config(data_dir, path)
+  recorded = json.loads((data_dir / 'config.json').read_text())
+  assert config.collection.policy == 'on_policy' and fingerprint(config) == recorded['fingerprint']
 
 
 def test_a_finished_round_is_skipped_when_rerun(one_round):

@@ -28,7 +28,7 @@ from dexjax.cli import OutputError, check_output_dir, is_dexjax_png
 from dexjax.config import ConfigError, as_dict, parse_json, validate_generate_config
 from dexjax.data.manifest import manifest_problem, open_manifest, pending_shards
 from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
-from dexjax.generate.config import GenerateConfig, content_fields, fingerprint, load_generate_config
+from dexjax.generate.config import CollectionConfig, GenerateConfig, content_fields, fingerprint, load_generate_config
 from dexjax.geometry.cache import atomic_write_text
 from dexjax.generate.parallel import run_tasks
 from dexjax.generate.pipeline import close_process_generators, generate_shard, process_generator, supervisor_sets
@@ -142,7 +142,8 @@ def _flat(data: Any, prefix: str = '') -> dict[str, Any]:
 
 def load_run_config(data_dir: str | os.PathLike[str], path: str | os.PathLike[str] | None = None) -> GenerateConfig:
   """The `GenerateConfig` a finished run was made with: the config file ``path`` (default: the defaults) with the
-  run's object sources and seed (``--objects`` and ``--seed`` may have set them), checked field by field against
+  run's object sources, seed and on-policy collection (``--objects``, ``--seed`` and ``--model`` may have set
+  them; the collecting model is not loaded again), checked field by field against
   the run's ``config.json``: every field of `content_fields` the record holds (older versions wrote fewer).
 
   Raises:
@@ -154,6 +155,8 @@ def load_run_config(data_dir: str | os.PathLike[str], path: str | os.PathLike[st
     raise FileNotFoundError(f'{record_path}: no run config record (python -m dexjax.generate writes one)')
   record = json.loads(record_path.read_text(encoding='utf-8'))['config']
   config = load_generate_config(path, objects=list(record['objects']['sources']), seed=int(record['seed']))
+  if record.get('collection', {}).get('policy', 'tau') != 'tau':  # as recorded: its model is not needed again
+    config = dataclasses.replace(config, collection=CollectionConfig(**record['collection']))
   ours = _flat(content_fields(as_dict(config)))
   for field, value in _flat(content_fields(record)).items():
     if field in ours and ours[field] != value:
