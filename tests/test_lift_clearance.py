@@ -7,10 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dexjax.bench.lift_clearance import (LIFT_HEIGHT, LIFT_STEP, LIFT_TOLERANCE, WALL_CONTACT, WALL_TILT,
-                                         lift_clearance, slots_clear_to_lift, wall_gaps, wall_hold_risk)
+from dexjax.bench.lift_clearance import LIFT_HEIGHT, LIFT_STEP, LIFT_TOLERANCE, lift_clearance, slots_clear_to_lift
 from dexjax.quality.heap_reward import HeapScene, stack_models
-from dexjax.sim.heap import Bin
 
 P = 6
 IDENTITY = (1.0, 0.0, 0.0, 0.0)
@@ -50,22 +48,3 @@ def test_the_clearance_under_an_overhang_is_the_gap(cube, gap):
   got = float(_clearance(scene, jnp.arange(P))[0])
   expected = LIFT_STEP * np.floor((gap + LIFT_TOLERANCE) / LIFT_STEP)
   assert abs(got - expected) < 1e-6, (got, expected)
-
-
-def test_wall_gaps_are_the_cubes_distances_to_the_walls(cube):
-  """4 cm cubes in a 0.4 m bin: the gap is 0.2 m - |centre| - 2 cm along the nearer axis (area-uniform samples
-  cover every face of the cube to within a millimetre of its edges); empty slots are infinitely far."""
-  positions = [(0.0, 0.0, 0.02), (0.178, 0.05, 0.02), (-0.05, -0.1805, 0.02)]
-  got = np.asarray(jax.jit(wall_gaps)(_scene(cube, positions), Bin()))
-  expected = [0.18, 0.002, 0.0]
-  np.testing.assert_allclose(got[:3], expected, atol=1.5e-3)
-  assert np.all(np.isinf(got[3:]))
-
-
-def test_wall_hold_risk_is_a_tilted_cup_on_an_object_touching_a_wall():
-  tilted = lambda a: jnp.asarray([np.sin(a), 0.0, -np.cos(a)], jnp.float32)  # approach into the surface
-  near, far = jnp.float32(0.5 * WALL_CONTACT), jnp.float32(2 * WALL_CONTACT)
-  assert bool(wall_hold_risk(tilted(WALL_TILT + 0.05), near))
-  assert not bool(wall_hold_risk(tilted(WALL_TILT - 0.05), near))  # a cup near vertical beside a wall holds
-  assert not bool(wall_hold_risk(tilted(0.6), far))
-  assert bool(wall_hold_risk(3.0 * tilted(0.3), near))  # the direction's length does not matter

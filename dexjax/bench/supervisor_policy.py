@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dexjax.bench.lift_clearance import slots_clear_to_lift, wall_gaps, wall_hold_risk
+from dexjax.bench.lift_clearance import slots_clear_to_lift
 from dexjax.generate.labels import LabelParams
 from dexjax.generate.supervisor import (GraspSet, heap_grasp_sets, parallel_jaw_supervisor_candidates,
                                         suction_supervisor_candidates)
@@ -64,7 +64,6 @@ SUPERVISOR = 'supervisor'
 """The supervisor policy's name in `dexjax.policy.POLICY_NAMES` and the benchmark."""
 
 _slots_clear_to_lift = jax.jit(slots_clear_to_lift)
-_wall_gaps = jax.jit(wall_gaps)
 
 
 @functools.partial(jax.jit, static_argnames=('suction',))
@@ -85,8 +84,7 @@ def _eligible_quality(sets_pk: GraspSet, scene: HeapScene, camera: Camera, mask:
 
 @functools.partial(jax.jit, static_argnames=('suction',))
 def _ranked(key: jax.Array, images: Any, idx: jax.Array, top: jax.Array, scene: HeapScene, masses: jax.Array,
-            camera: Camera, params: LabelParams, suction: bool, fallback: jax.Array, clear: jax.Array,
-            gaps: jax.Array):
+            camera: Camera, params: LabelParams, suction: bool, fallback: jax.Array, clear: jax.Array):
   """(score (n,), rank (n,)) of the candidates ``idx`` (n,) of ``images`` whose set qualities are ``top`` (n,)
   (-inf: not eligible). The score is the smallest of the grasp's robust probabilities in the bin with the labels'
   mass law and with the objects' true ``masses`` (P,) kg, and its set quality (Omega's, with gravity's direction
@@ -111,12 +109,7 @@ def _ranked(key: jax.Array, images: Any, idx: jax.Array, top: jax.Array, scene: 
   effort = (fallback & jnp.isfinite(top) & decided_by_robustness(prior.failure)
             & decided_by_robustness(known.failure)
             & ((known.robust_probability > 0) | (prior.robust_probability > 0)))
-  target = jnp.maximum(known.target_slot, 0)
-  first = clear[target]
-  if suction:  # a tilted cup on an object touching a wall: after the grasps that rise clear (lift_clearance doc)
-    approach = jax.vmap(lambda g: to_world(camera, g).approach)(chosen)
-    first = first & ~jax.vmap(wall_hold_risk)(approach, gaps[target])
-  first = 2.0 * first
+  first = 2.0 * clear[jnp.maximum(known.target_slot, 0)]
   best_effort = known.robust_probability + 1e-2 * robust + 1e-4 * prior.robust_probability
   rank = jnp.where(ok, 2.0 + first + robust + 1e-2 * known.robust_probability + 1e-4 * top,
                    jnp.where(effort, best_effort, -jnp.inf))
@@ -129,7 +122,7 @@ _PASSES = 2.0
 
 def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax.Array, camera: Camera,
                 mask: jax.Array, depth: jax.Array, params: LabelParams, suction: bool, num_scored: int,
-                fallback: jax.Array, clear: jax.Array, gaps: jax.Array) -> tuple[Any, float, float]:
+                fallback: jax.Array, clear: jax.Array) -> tuple[Any, float, float]:
   """(image grasp, score, rank) of one gripper's best grasp in the bin (`_ranked`), -inf rank when there is none.
 
   The eligible candidates are scored ``num_scored`` at a time, best set quality first, in rounds: the next round
@@ -146,7 +139,7 @@ def _best_grasp(key: jax.Array, sets_pk: GraspSet, scene: HeapScene, masses: jax
     top = np.where(where < count, quality[idx], -np.inf).astype(np.float32)  # the first `count` are eligible
     round_key = key if start == 0 else jax.random.fold_in(key, start // num_scored)
     robust, rank = jax.device_get(_ranked(round_key, images, jnp.asarray(idx, jnp.int32), jnp.asarray(top), scene,
-                                          masses, camera, params, suction, fallback, clear, gaps))
+                                          masses, camera, params, suction, fallback, clear))
     i = int(np.argmax(rank))
     if rank[i] > best[2] or best[0] is None:
       best = (jax.tree.map(lambda a, i=int(idx[i]): a[i], images), float(robust[i]), float(rank[i]))
@@ -167,8 +160,7 @@ class SupervisorPolicy:
     loads: the reward's target carries its neighbours' resting load (`PickingWorld.loads`).
     fallback: when no candidate passes, the best effort (see the module doc) instead of no grasp.
     lift_first: among the grasps that pass, those on an object that rises straight out of the heap without
-      entering another first, suction grasps with a tilted cup on an object touching a wall last with the rest
-      (`dexjax.bench.lift_clearance`).
+      entering another (`dexjax.bench.lift_clearance`) first.
     privileged: always True: the policy reads the true bin state, not only the image.
   """
 
@@ -198,12 +190,11 @@ class SupervisorPolicy:
     mask = jnp.asarray(segmentation, jnp.int32)
     masses, fallback = jnp.asarray(masses, jnp.float32), jnp.asarray(self.fallback)
     clear = _slots_clear_to_lift(scene) if self.lift_first else jnp.zeros_like(scene.mask)
-    gaps = _wall_gaps(scene, self.params.bin) if self.lift_first else jnp.full(scene.mask.shape, jnp.inf)
     actions, ranks = [], []
     for suction, sets, k in zip((False, True), self.sets, jax.random.split(key)):
       sets_pk = heap_grasp_sets(sets, jnp.asarray(slot_ids, jnp.int32))
       grasp, prob, rank = _best_grasp(k, sets_pk, scene, masses, camera, mask, observation.depth, self.params,
-                                      suction, self.num_scored, fallback, clear, gaps)
+                                      suction, self.num_scored, fallback, clear)
       actions.append(action_from_grasp(observation, grasp, jnp.float32(prob), jnp.asarray(np.isfinite(rank))))
       ranks.append(rank)
     return jax.device_get(actions[int(np.argmax(ranks))])
