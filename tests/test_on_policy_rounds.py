@@ -126,3 +126,11 @@ def test_collection_config_names_field_and_expected_value(tmp_path):
     with_collection(GENERATE, 'on_policy', tmp_path / 'no_such_run')
   # The seed's collection policy leaves the fingerprint as it was before the section existed.
   assert fingerprint(with_collection(GENERATE, 'tau')) == fingerprint(GENERATE)
+
+
+def test_on_policy_yaml_is_the_deployment_recipe_with_the_policys_choices_first():
+  """configs/on_policy.yaml: configs/deployment.yaml's bins and sensor on other heaps, the policy's top 10 first."""
+  from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top
+  config, deployment = load_generate_config('configs/on_policy.yaml'), load_generate_config('configs/deployment.yaml')
+  assert config.policy.top_k == 10 and config.seed != deployment.seed and config.collection.policy == 'tau'
+  assert dataclasses.replace(config, seed=deployment.seed, policy=deployment.policy) == deployment
