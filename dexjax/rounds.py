@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
       raise ValueError(f'--{name}: expected an integer >= 1, got {getattr(args, name)}')
   from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top (slow imports)
   from dexjax.train.config import load_train_config  # pylint: disable=g-import-not-at-top
-  from dexjax.train.rounds import run_rounds  # pylint: disable=g-import-not-at-top
+  from dexjax.train.on_policy_rounds import run_rounds  # pylint: disable=g-import-not-at-top
   generate = load_generate_config(args.generate_config)
   train = load_train_config(args.train_config).validate(args.train_config or 'the default config')
   log = (lambda *a, **k: print(*a, file=sys.stderr, **k)) if args.json else print

@@ -1,5 +1,5 @@
 """On-policy dataset synthesis end to end, with tiny settings: one round collected by the shipped policy and
-trained from it (`dexjax.train.rounds`), its rows the grasps that policy scored, the round resumable."""
+trained from it (`dexjax.train.on_policy_rounds`), its rows the grasps that policy scored, the round resumable."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from dexjax.generate.policy import POLICY, SUPERVISOR
 from dexjax.policy.observation import Observation
 from dexjax.render.camera import Camera, Intrinsics
 from dexjax.train.config import CheckpointConfig, LoopConfig, TrainConfig
-from dexjax.train.rounds import ROUNDS_FILE, round_configs, round_dirs, run_rounds
+from dexjax.train.on_policy_rounds import ROUNDS_FILE, round_configs, round_dirs, run_rounds
 from test_generate import SMALL
 
 SMALL_ON_POLICY = {**SMALL, 'policy': {'actions_per_gripper': 12, 'epsilon': 0.25, 'top_k': 4}}

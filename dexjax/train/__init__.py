@@ -15,7 +15,7 @@ from dexjax.train.loop import Interrupted, check_trainable, final_state_params, 
 from dexjax.train.metrics import average_precision, bootstrap_intervals, classification_metrics
 from dexjax.train.report import plot_curves, read_records
 from dexjax.train.run import check_run_dir, quickstart_dataset, train_run
-from dexjax.train.rounds import ROUNDS_FILE, round_configs, round_dirs, run_rounds
+from dexjax.train.on_policy_rounds import ROUNDS_FILE, round_configs, round_dirs, run_rounds
 from dexjax.train.step import (OptimizerConfig, TrainState, create_state, cross_entropy, eval_logits,
                                learning_rate_schedule, make_optimizer, train_step)
 
