@@ -18,7 +18,8 @@ from dexjax.generate.parallel import RunResult, run_tasks
 from dexjax.generate.pipeline import (ShardGenerator, close_process_generators, generate_shard, image_label_key,
                                       label_params, supervisor_sets)
 from dexjax.generate.relabel import Relabelled, generation_reward_keys, relabel_shard, row_grasp
-from dexjax.generate.on_policy import collection_models, collection_policy, model_digest, plan_candidates, policy_candidates
+from dexjax.generate.on_policy import (collection_models, collection_policy, model_digest, plan_candidates,
+                                       policy_candidates)
 from dexjax.generate.policy import CANDIDATE, POLICY, SUPERVISOR, PolicyParams, collection_actions, supervisor_draws
 from dexjax.generate.report import RowStats, format_summary, save_generation_png, summarize_rows
 from dexjax.generate.run import check_run_dir, generate_dataset, load_run_config, num_shards, warm_caches
@@ -28,15 +29,15 @@ from dexjax.generate.supervisor import (GraspSet, SupervisorParams, cached_grasp
 from dexjax.objects.sets import NoObjectsError, usable_objects
 
 __all__ = [
-  'CANDIDATE', 'COLLECTION_POLICIES', 'CollectionConfig', 'PARALLEL_JAW', 'POLICY', 'SUCTION', 'SUPERVISOR', 'DatasetConfig', 'GenerateConfig', 'GraspSet',
-  'ImageRows', 'LabelParams', 'NoObjectsError', 'ObjectsConfig', 'PolicyParams', 'Relabelled', 'RowStats',
-  'RunResult', 'ShardGenerator', 'SupervisorParams', 'apply_camera_file', 'cached_grasp_sets', 'check_run_dir',
-  'close_process_generators', 'collection_actions', 'collection_models', 'collection_policy', 'config_from_dict', 'fingerprint', 'format_summary',
-  'generate_dataset', 'generate_shard', 'generation_reward_keys', 'heap_grasp_sets', 'image_label_key',
-  'image_size', 'label_image', 'label_params', 'load_generate_config', 'load_run_config', 'model_digest', 'num_shards',
-  'parallel_jaw_grasp_set', 'parallel_jaw_supervisor_candidates', 'pickable_mask', 'plan_candidates',
-  'policy_candidates',
-  'relabel_shard', 'reward_keys', 'row_grasp', 'run_camera', 'run_tasks', 'save_generation_png',
-  'suction_grasp_set', 'suction_supervisor_candidates', 'summarize_rows', 'supervisor_draws', 'supervisor_sets',
-  'usable_objects', 'warm_caches', 'with_collection', 'with_grippers',
+  'apply_camera_file', 'cached_grasp_sets', 'CANDIDATE', 'check_run_dir', 'close_process_generators',
+  'collection_actions', 'collection_models', 'COLLECTION_POLICIES', 'collection_policy', 'CollectionConfig',
+  'config_from_dict', 'DatasetConfig', 'fingerprint', 'format_summary', 'generate_dataset', 'generate_shard',
+  'GenerateConfig', 'generation_reward_keys', 'GraspSet', 'heap_grasp_sets', 'image_label_key', 'image_size',
+  'ImageRows', 'label_image', 'label_params', 'LabelParams', 'load_generate_config', 'load_run_config',
+  'model_digest', 'NoObjectsError', 'num_shards', 'ObjectsConfig', 'PARALLEL_JAW', 'parallel_jaw_grasp_set',
+  'parallel_jaw_supervisor_candidates', 'pickable_mask', 'plan_candidates', 'POLICY', 'policy_candidates',
+  'PolicyParams', 'relabel_shard', 'Relabelled', 'reward_keys', 'row_grasp', 'RowStats', 'run_camera',
+  'run_tasks', 'RunResult', 'save_generation_png', 'ShardGenerator', 'SUCTION', 'suction_grasp_set',
+  'suction_supervisor_candidates', 'summarize_rows', 'SUPERVISOR', 'supervisor_draws', 'supervisor_sets',
+  'SupervisorParams', 'usable_objects', 'warm_caches', 'with_collection', 'with_grippers',
 ]

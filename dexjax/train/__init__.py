@@ -20,13 +20,13 @@ from dexjax.train.step import (OptimizerConfig, TrainState, create_state, cross_
                                learning_rate_schedule, make_optimizer, train_step)
 
 __all__ = [
-  'BEST_METRICS', 'CLASS_BALANCE', 'ROUNDS_FILE', 'CheckpointConfig', 'Checkpointer', 'GripperStats', 'Interrupted', 'LoopConfig',
-  'OptimizerConfig', 'QuickstartData', 'SplitConfig', 'TrainConfig', 'TrainState', 'average_precision',
-  'bootstrap_intervals', 'predict_rows',
-  'check_run_dir', 'check_trainable', 'classification_metrics', 'config_to_dict', 'create_state', 'cross_entropy', 'data_mesh', 'dataset_stats',
-  'eval_batches', 'eval_logits', 'evaluate_model', 'final_state_params', 'gripper_examples', 'learning_rate_schedule',
-  'label_probability', 'soft_labels',
-  'load_train_config', 'make_optimizer', 'plot_curves', 'pose_vectors', 'quickstart_dataset', 'read_records',
-  'replicate', 'round_configs', 'round_dirs', 'run_rounds', 'sample_examples', 'sgd_step', 'shard_batch', 'symmetrize', 'train_batches', 'train_config_from_dict', 'train_gripper',
-  'train_run', 'train_step',
+  'average_precision', 'BEST_METRICS', 'bootstrap_intervals', 'check_run_dir', 'check_trainable',
+  'CheckpointConfig', 'Checkpointer', 'CLASS_BALANCE', 'classification_metrics', 'config_to_dict', 'create_state',
+  'cross_entropy', 'data_mesh', 'dataset_stats', 'eval_batches', 'eval_logits', 'evaluate_model',
+  'final_state_params', 'gripper_examples', 'GripperStats', 'Interrupted', 'label_probability',
+  'learning_rate_schedule', 'load_train_config', 'LoopConfig', 'make_optimizer', 'OptimizerConfig', 'plot_curves',
+  'pose_vectors', 'predict_rows', 'quickstart_dataset', 'QuickstartData', 'read_records', 'replicate',
+  'round_configs', 'round_dirs', 'ROUNDS_FILE', 'run_rounds', 'sample_examples', 'sgd_step', 'shard_batch',
+  'soft_labels', 'SplitConfig', 'symmetrize', 'train_batches', 'train_config_from_dict', 'train_gripper',
+  'train_run', 'train_step', 'TrainConfig', 'TrainState',
 ]

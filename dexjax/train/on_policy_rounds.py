@@ -106,7 +106,8 @@ def run_rounds(generate: GenerateConfig, train: TrainConfig, out_dir: str | os.P
     _record(out, {'round': r, 'step': 'collect', 'data': os.fspath(data_dir), 'rows': data['rows'],
                   'collection': dataclasses.asdict(gen.collection), 'grippers': data['grippers'],
                   'seconds': data['seconds']})
-    log(f'round {r}: training into {train_dir} ({"resumed" if state == "resume" else "from " + (tr.init or "scratch")})')
+    start = 'resumed' if state == 'resume' else f'from {tr.init or "scratch"}'
+    log(f'round {r}: training into {train_dir} ({start})')
     summary = train_run(tr, data_dir, train_dir, resume=state == 'resume', progress=progress, log=log)
     _record(out, {'round': r, 'step': 'train', 'out': os.fspath(train_dir), 'init': tr.init,
                   'grippers': summary['grippers'], 'seconds': summary['seconds']})
