@@ -24,7 +24,9 @@ from dexjax.data.shards import FORMAT_VERSION, config_fingerprint
 from dexjax.generate.labels import LABEL_VERSION
 from dexjax.generate.policy import PolicyParams
 from dexjax.generate.supervisor import SupervisorParams
+from dexjax.models.shipped import PRETRAINED
 from dexjax.objects.procedural import PROCEDURAL_VERSION
+from dexjax.policy.presets import CEM_PRESETS
 from dexjax.quality.heap_reward import RewardParams
 from dexjax.quality.report import ReportSettings, settings_from_config
 from dexjax.render.distribution import CameraDistribution
@@ -76,8 +78,6 @@ class DatasetConfig:
 
 
 COLLECTION_POLICIES = ('tau', 'on_policy')
-PRETRAINED_MODELS = 'pretrained'  # dexjax.models.PRETRAINED: the shipped GQ-CNNs, a name and not a path
-CEM_PRESETS = ('seed', 'gqcnn')  # dexjax.policy.presets.CEM_PRESETS (not imported: it loads the policies)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -242,7 +242,7 @@ def _collection(config: GenerateConfig, values: dict[str, Any] | None, source: s
   values = dict(values or {})
   if 'model_digest' in values:
     raise ConfigError(source, 'collection.model_digest', 'set from the model when the config is loaded; remove it')
-  if values.get('model') and values['model'] != PRETRAINED_MODELS:
+  if values.get('model') and values['model'] != PRETRAINED:
     values['model'] = os.path.join(os.path.dirname(os.path.abspath(source)), str(values['model']))
   collection = override(config.collection, values, source=source, section='collection')
   return with_collection(config, collection.policy, collection.model or None, collection.cem, source=source)
@@ -260,7 +260,7 @@ def with_collection(config: GenerateConfig, policy: str | None = None, model: st
   c = config.collection
   policy = c.policy if policy is None else policy
   if model is not None:
-    model = os.fspath(model) if os.fspath(model) == PRETRAINED_MODELS else os.path.abspath(os.fspath(model))
+    model = os.fspath(model) if os.fspath(model) == PRETRAINED else os.path.abspath(os.fspath(model))
   model = c.model if model is None else model
   cem = c.cem if cem is None else cem
   if policy not in COLLECTION_POLICIES:

@@ -47,7 +47,7 @@ from dexjax.generate.on_policy import collection_models, collection_policy, plan
 from dexjax.objects.folder import Rejection
 from dexjax.objects.sets import NoObjectsError, usable_objects  # re-exported: callers import them from here too
 from dexjax.quality.heap_reward import HeapScene, heap_scene, scene_slot_ids
-from dexjax.policy.observation import Observation
+from dexjax.policy.observation import observation
 from dexjax.render.noise import noisy_depth
 from dexjax.render.rendering import DepthRenderer, build_render_scene
 from dexjax.sim.bodies import heap_objects
@@ -94,10 +94,15 @@ def supervisor_sets(config: GenerateConfig, models: Sequence[Any], cache_dir: st
                                cache_dir=os.path.join(cache_dir, 'supervisor') if cache_dir is not None else None)
 
 
+def stage_names(config: GenerateConfig) -> tuple[str, ...]:
+  """The stages a run's shards time (``stats['seconds']``): settle, render, label, write, and the learned policy's
+  plans when it collects on-policy."""
+  return _STAGES + (('plan',) if config.collection.policy != 'tau' else ())
+
+
 def _empty_stats(config: GenerateConfig) -> dict[str, Any]:
-  stages = _STAGES + (('plan',) if config.collection.policy != 'tau' else ())
   return {'heaps': 0, 'diverged_heaps': 0, 'objects_left_bin': 0, 'images': 0,
-          'seconds': {stage: 0.0 for stage in stages}}
+          'seconds': {stage: 0.0 for stage in stage_names(config)}}
 
 
 def _shard_keys(seed: int, index: int) -> jax.Array:
@@ -233,7 +238,7 @@ class ShardGenerator:
     candidates = None
     if self.collector is not None:
       clock = time.perf_counter()
-      obs = Observation(depth=jnp.asarray(depth), mask=jnp.asarray((rendered.mask >= 0) & observed), camera=camera)
+      obs = observation(depth, camera, (rendered.mask >= 0) & observed)
       candidates = _plan(_policy_key(config.seed, index, j), obs, self.collector)
       stats['seconds']['plan'] += time.perf_counter() - clock
     clock = time.perf_counter()
@@ -314,4 +319,4 @@ def generate_shard(index: int, config: GenerateConfig, out_dir: str, cache_dir: 
 
 
 __all__ = ['NoObjectsError', 'ShardGenerator', 'close_process_generators', 'generate_shard', 'image_label_key',
-           'label_params', 'policy_depth', 'process_generator', 'usable_objects']
+           'label_params', 'policy_depth', 'process_generator', 'stage_names', 'usable_objects']

@@ -31,7 +31,8 @@ from dexjax.data.shards import MANIFEST_NAME, read_shard, shard_path
 from dexjax.generate.config import CollectionConfig, GenerateConfig, content_fields, fingerprint, load_generate_config
 from dexjax.geometry.cache import atomic_write_text
 from dexjax.generate.parallel import run_tasks
-from dexjax.generate.pipeline import close_process_generators, generate_shard, process_generator, supervisor_sets
+from dexjax.generate.pipeline import (close_process_generators, generate_shard, process_generator, stage_names,
+                                      supervisor_sets)
 from dexjax.generate.report import RowStats
 from dexjax.objects.sets import load_object_set, prepare_object_set, usable_objects
 
@@ -271,9 +272,7 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
   if todo and not new_run:
     prepare()
   stats, heap_counts = RowStats(), {'heaps': 0, 'diverged_heaps': 0, 'objects_left_bin': 0, 'images': 0}
-  stage_seconds = {'settle': 0.0, 'render': 0.0, 'label': 0.0, 'write': 0.0}
-  if config.collection.policy != 'tau':
-    stage_seconds['plan'] = 0.0  # the learned policy's plans (on-policy collection)
+  stage_seconds = {stage: 0.0 for stage in stage_names(config)}
 
   workers_seen: dict[int, list[float]] = {}  # pid -> [warm rows, warm seconds]
 
@@ -288,7 +287,7 @@ def generate_dataset(config: GenerateConfig, out_dir: str | os.PathLike[str], nu
     for k in heap_counts:
       heap_counts[k] += result[k]
     for k, v in result['seconds'].items():
-      stage_seconds[k] = stage_seconds.get(k, 0.0) + v
+      stage_seconds[k] += v
 
   clock = time.perf_counter()
   task = functools.partial(_shard_task, config=config, out_dir=os.fspath(out), cache_dir=cache_dir)
