@@ -1,13 +1,16 @@
 """On-policy dataset synthesis in rounds: collect, train, collect with the trained policy, train again.
 
   python -m dexjax.rounds --generate-config configs/deployment.yaml --train-config configs/pretrained.yaml
-      --out DIR --rounds R --images N [--init pretrained|RUN] [--workers W] [--cache-dir DIR] [--json]
+      --out DIR --rounds R --images N [--init pretrained|RUN] [--base-data DIR ...] [--aggregate] [--workers W]
+      [--cache-dir DIR] [--json]
 
 Round r writes ``DIR/round-<r>/data`` (python -m dexjax.generate; from round 1 on, or from round 0 with --init,
 the candidates are the grasps the previous round's policy scores: on-policy synthesis, docs/generate.md) and
 ``DIR/round-<r>/train`` (python -m dexjax.train, fine-tuning the previous round's models). Rerun the same command
 to resume; finished rounds are skipped. ``DIR/round-<R-1>/train`` holds the final models (``--model`` of
-``python -m dexjax.plan`` and ``python -m dexjax.benchmark``). Exit code 0, 1 when some shards of a collection
+``python -m dexjax.plan`` and ``python -m dexjax.benchmark``). Each round trains on its own collection, with
+--aggregate on every round's so far (DAgger), and with --base-data also on those datasets (e.g. the set --init was
+trained on, so the models keep knowing the random candidates they started from). Exit code 0, 1 when some shards of a collection
 failed (rerun to retry them), 2 for bad input (docs/errors.md).
 """
 
@@ -30,6 +33,10 @@ def _parser() -> argparse.ArgumentParser:
   p.add_argument('--images', type=int, required=True, help='images each round collects')
   p.add_argument('--init', help='collect round 0 on-policy with these models and start training from them '
                                 '(pretrained, a training run or a saved model; default: tau, from scratch)')
+  p.add_argument('--base-data', nargs='+', default=[], help='datasets every round also trains on (e.g. the one '
+                                                           '--init was trained on)')
+  p.add_argument('--aggregate', action='store_true', help='each round trains on every round\'s collection so far, '
+                                                         'not only its own')
   p.add_argument('--workers', type=int, default=1, help='collection workers (default 1)')
   p.add_argument('--cache-dir', help='object and supervisor cache (default $DEXJAX_CACHE or ~/.cache/dexjax/objects)')
   p.add_argument('--json', action='store_true', help='print rounds.json at the end')
@@ -49,7 +56,8 @@ def main(argv: list[str] | None = None) -> int:
   train = load_train_config(args.train_config).validate(args.train_config or 'the default config')
   log = (lambda *a, **k: print(*a, file=sys.stderr, **k)) if args.json else print
   try:
-    records = run_rounds(generate, train, args.out, args.rounds, args.images, init=args.init, workers=args.workers,
+    records = run_rounds(generate, train, args.out, args.rounds, args.images, init=args.init, base_data=args.base_data,
+                         aggregate=args.aggregate, workers=args.workers,
                          cache_dir=args.cache_dir, progress=not args.json, log=log)
   except RuntimeError as e:  # some shards of a collection failed: rerun to retry them
     return report_failure(e)

@@ -293,6 +293,8 @@ def test_binary_empty_and_directory_inputs_name_the_file(files, tmp_path, capsys
   _bad(capsys, rounds_main, ['--out', tmp_path / 'rounds', '--rounds', '0', '--images', '4'], '--rounds', '>= 1')
   _bad(capsys, rounds_main, ['--generate-config', binary, '--out', tmp_path / 'rounds', '--rounds', '1', '--images',
                              '4'], 'binary.bin', 'not a text file')
+  _bad(capsys, rounds_main, ['--out', tmp_path / 'rounds', '--rounds', '1', '--images', '4', '--base-data',
+                             tmp_path / 'no_data'], 'no_data', 'no dataset shards', '--base-data')
   _bad(capsys, generate_main, ['--out', tmp_path / 'gen', '--num-images', '1', '--collection-policy', 'on_policy'],
        'collection.model', "learned policy's GQ-CNNs")
   _bad(capsys, generate_main, ['--out', tmp_path / 'gen', '--num-images', '1', '--model', tmp_path / 'no_run'],

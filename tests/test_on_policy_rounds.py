@@ -22,7 +22,7 @@ from dexjax.generate.policy import POLICY, SUPERVISOR
 from dexjax.policy.observation import Observation
 from dexjax.render.camera import Camera, Intrinsics
 from dexjax.train.config import CheckpointConfig, LoopConfig, TrainConfig
-from dexjax.train.on_policy_rounds import ROUNDS_FILE, round_configs, round_dirs, run_rounds
+from dexjax.train.on_policy_rounds import ROUNDS_FILE, round_configs, round_dirs, round_training_data, run_rounds
 from test_generate import SMALL
 
 SMALL_ON_POLICY = {**SMALL, 'policy': {'actions_per_gripper': 12, 'epsilon': 0.25, 'top_k': 4}}
@@ -48,6 +48,7 @@ def test_a_round_collects_with_the_policy_and_fine_tunes_it(one_round):
   assert [(r['round'], r['step']) for r in records] == [(0, 'collect'), (0, 'train')]
   assert records[0]['collection']['policy'] == 'on_policy' and records[1]['init'] == 'pretrained'
   assert (train_dir / 'summary.json').is_file() and (train_dir / 'parallel_jaw' / 'best').is_dir()
+  assert records[1]['data'] == [str(data_dir)]
   # The round's data is tied to the weights it was collected with: the run's config holds their digest.
   saved = json.loads((data_dir / 'config.json').read_text())['config']['collection']
   assert saved['model_digest'] == model_digest(collection_models('pretrained')[0])
@@ -134,3 +135,14 @@ def test_on_policy_yaml_is_the_deployment_recipe_with_the_policys_choices_first(
   config, deployment = load_generate_config('configs/on_policy.yaml'), load_generate_config('configs/deployment.yaml')
   assert config.policy.top_k == 10 and config.seed != deployment.seed and config.collection.policy == 'tau'
   assert dataclasses.replace(config, seed=deployment.seed, policy=deployment.policy) == deployment
+
+
+def test_rounds_train_on_their_own_collection_or_on_all_so_far_with_the_base_data(tmp_path):
+  base = tmp_path / 'deployment'
+  assert round_training_data(tmp_path, 2) == [round_dirs(tmp_path, 2)[0]]
+  assert round_training_data(tmp_path, 2, [base], aggregate=True) == [base] + [round_dirs(tmp_path, r)[0]
+                                                                              for r in range(3)]
+  # A base dataset without shards is refused before the first (long) collection writes anything.
+  with pytest.raises(FileNotFoundError, match=r'deployment: no dataset shards .* \(--base-data\)'):
+    run_rounds(GENERATE, TRAIN, tmp_path / 'rounds', 1, 4, base_data=[base], progress=False)
+  assert not (tmp_path / 'rounds').exists()

@@ -60,10 +60,10 @@ def _finish(out_dir, index, fingerprint=FP, seed=SEED):
   return finish_shard(out_dir, index, images, rows, {"config_fingerprint": fingerprint, "seed": seed})
 
 
-def _dataset(out_dir, num_shards=5):
-  open_manifest(out_dir, FP, SEED, num_shards)
+def _dataset(out_dir, num_shards=5, seed=SEED):
+  open_manifest(out_dir, FP, seed, num_shards)
   for index in range(num_shards):
-    _finish(out_dir, index)
+    _finish(out_dir, index, seed=seed)
 
 
 def test_round_trip_keeps_every_array_and_meta(tmp_path):
@@ -274,3 +274,40 @@ def test_row_groups_name_the_contacted_object_or_else_the_heap(tmp_path):
   assert kinds == {(True, True), (True, False), (False, False)}  # an object, an empty slot, no contact
   with pytest.raises(ValueError, match="'by': expected 'heap' or 'object'"):
     row_groups(tmp_path, rows["shard_index"], rows["image_index"], rows["target_slot"], by="image")
+
+
+def test_several_datasets_are_read_as_their_union_with_heaps_split_per_dataset(tmp_path):
+  a, b = tmp_path / "a", tmp_path / "b"
+  _dataset(a, num_shards=5)
+  _dataset(b, num_shards=3, seed=SEED + 1)  # same heap ids as a's first three shards, other content
+  seen = {}
+  for split in ("train", "val"):
+    batches = list(iterate_rows([a, b], split, batch_size=3, seed=0, shuffle_buffer=7, val_fraction=0.5))
+    seen[split] = [(d, s, r) for x in batches for d, s, r in zip(x["dataset_index"].tolist(),
+                                                                  x["shard_index"].tolist(), x["row_index"].tolist())]
+    for x in batches:
+      for k, (d, s, r) in enumerate(zip(x["dataset_index"], x["shard_index"], x["row_index"])):
+        shard = read_shard(shard_path((a, b)[d], int(s)))
+        np.testing.assert_array_equal(x["grasp_pose"][k], shard.rows["grasp_pose"][r])
+        np.testing.assert_array_equal(x["depth"][k], shard.images["depth"][shard.rows["image_index"][r]])
+  train, val = set(seen["train"]), set(seen["val"])
+  assert len(train) == len(seen["train"]) and len(val) == len(seen["val"]) and train.isdisjoint(val)
+  assert len(train) + len(val) == (5 + 3) * 20
+  assert {d for d, _, _ in train} == {d for d, _, _ in val} == {0, 1}
+  # dataset 0 is split as on its own; dataset 1's heaps (same ids) are split independently of dataset 0's
+  alone = {(s, r) for x in iterate_rows(a, "val", batch_size=3, seed=0, shuffle_buffer=7, val_fraction=0.5)
+           for s, r in zip(x["shard_index"].tolist(), x["row_index"].tolist())}
+  assert {(s, r) for d, s, r in val if d == 0} == alone
+  val_heaps = [{h for h in _heap_and_objects(directory, [(s, r) for d, s, r in val if d == k])[0]}
+               for k, directory in enumerate((a, b))]
+  train_heaps = [{h for h in _heap_and_objects(directory, [(s, r) for d, s, r in train if d == k])[0]}
+                 for k, directory in enumerate((a, b))]
+  assert val_heaps[0] & train_heaps[1]  # one heap id, in validation in a and in training in b
+  rows = [np.array(c) for c in zip(*sorted(train))]
+  images = [read_shard(shard_path((a, b)[d], s)).rows["image_index"][r] for d, s, r in sorted(train)]
+  slots = np.full(len(images), -1)
+  groups = row_groups([a, b], rows[1], np.array(images), slots, by="heap", dataset_index=rows[0])
+  assert {g.split("/")[0] for g in groups} == {"heap:0", "heap:1"}
+  assert len(set(groups)) == len(train_heaps[0]) + len(train_heaps[1])
+  with pytest.raises(ValueError, match="non-empty list"):
+    list(iterate_rows([], "train"))

@@ -223,6 +223,31 @@ def test_train_and_evaluate_command_lines(data, tmp_path, capsys):
   assert 'no saved GQ-CNN' in capsys.readouterr().err
 
 
+def test_training_on_several_datasets_reads_their_union(data, tmp_path, capsys):
+  """``--data A B``: one run on both datasets; every row of both is in exactly one split, the summary names both,
+  and evaluation with intervals groups heaps per dataset (the two share heap ids)."""
+  from dexjax.data import iterate_rows
+  from dexjax.train.__main__ import main as train_main
+  other = tmp_path / 'other'
+  _write_dataset(other, num_shards=2, images_per_shard=8, seed=1)
+  config = tmp_path / 'tiny.yaml'
+  config.write_text('grippers: [parallel_jaw]\nloop: {epochs: 1, batch_size: 16, normalization_rows: 200}\n'
+                    'split: {val_fraction: 0.25}\n')
+  out = tmp_path / 'run'
+  assert train_main(['--config', str(config), '--data', str(data), str(other), '--out', str(out), '--no-progress',
+                     '--json']) == 0
+  summary = json.loads(capsys.readouterr().out)
+  assert summary['data'] == [str(data), str(other)]
+  stats = json.loads((out / 'stats.json').read_text())['parallel_jaw']
+  val = summary['grippers']['parallel_jaw']['val_examples']
+  jaw_rows = lambda d: sum(int((b['gripper'] == 0).sum()) for s in ('train', 'val') for b in iterate_rows(d, s))
+  assert stats['train_rows'] + val == jaw_rows(data) + jaw_rows(other)
+  both = dataclasses.replace(CONFIG, grippers=('parallel_jaw',))
+  model = load(out / 'parallel_jaw')
+  metrics = evaluate_model(model, [data, other], both, 'val', interval_by='heap', num_resamples=20)
+  assert metrics['examples'] == val and metrics['intervals']['by'] == 'heap'
+
+
 def test_configs_and_their_errors(tmp_path):
   recipe = load_train_config('configs/dexnet4_pj.yaml')
   assert recipe.grippers == ('parallel_jaw',) and recipe.model.crop_size == 96 == recipe.crop_window

@@ -1,7 +1,7 @@
 """Train GQ-CNNs (the project's main job).
 
   python -m dexjax.train                      # quick start: built-in dataset (generated once), both grippers
-  python -m dexjax.train --config configs/dexnet4_pj.yaml --data DIR [--out OUT] [--resume]
+  python -m dexjax.train --config configs/dexnet4_pj.yaml --data DIR [DIR ...] [--out OUT] [--resume]
       [--grippers parallel_jaw suction] [--epochs N] [--seed S] [--init pretrained|RUN|MODEL] [--cache-dir DIR]
       [--no-progress] [--json]
       [--distributed [--coordinator HOST:PORT --num-processes N --process-id I]]
@@ -16,6 +16,9 @@ dataset failed, 2 for bad input (docs/errors.md).
 --init pretrained fine-tunes the shipped models (dexjax.models.pretrained) on --data instead of starting from random
 weights: the run takes their architecture and input normalisation (docs/models.md); --init RUN or MODEL starts
 from another trained run or saved model.
+
+Several --data directories are trained on as one dataset (their union: e.g. the rounds of on-policy synthesis and
+the set they started from, python -m dexjax.rounds --aggregate).
 """
 
 from __future__ import annotations
@@ -34,8 +37,9 @@ from dexjax.config_rules import ConfigError
 def _parser() -> argparse.ArgumentParser:
   p = argparse.ArgumentParser(prog='python -m dexjax.train', description=__doc__.split('\n\n')[0])
   p.add_argument('--config', help='training config (layout: configs/dexnet4_pj.yaml; default: the quick start)')
-  p.add_argument('--data', help='dataset directory from python -m dexjax.generate (default: the built-in quick-start '
-                                'set, generated on first use and cached)')
+  p.add_argument('--data', nargs='+', help='dataset directory from python -m dexjax.generate, or several (their '
+                                           'union; default: the built-in quick-start set, generated on first use '
+                                           'and cached)')
   p.add_argument('--out', help='run directory (default runs/<config name>-<date-time>)')
   p.add_argument('--resume', action='store_true', help='continue the run in --out (default: the newest of this '
                                                        'config) from its last checkpoint')

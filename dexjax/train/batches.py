@@ -14,19 +14,18 @@ that is how a resumed run continues with the same data order.
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Iterator
 
 import numpy as np
 
-from dexjax.data.loader import iterate_rows
+from dexjax.data.loader import DataDirs, dataset_label, iterate_rows
 from dexjax.data.shards import GRIPPER_NAMES
 from dexjax.models.normalization import Normalization, fit_normalization
 from dexjax.train.config import LoopConfig, TrainConfig
 from dexjax.train.data import gripper_examples, label_probability
 
 _LOADER_BATCH = 256  # rows per loader batch (both grippers); only the grouping of reads, not the result
-_SOURCE_FIELDS = ('shard_index', 'row_index', 'image_index', 'target_slot')  # where an evaluated row came from
+_SOURCE_FIELDS = ('dataset_index', 'shard_index', 'row_index', 'image_index', 'target_slot')  # where an evaluated row came from
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,7 +65,7 @@ class GripperStats:
     return int(round(self.train_positives + negatives * self.keep_negative_probability()))
 
 
-def _split_rows(data_dir: str | os.PathLike, config: TrainConfig, split: str, seed,
+def _split_rows(data_dir: DataDirs, config: TrainConfig, split: str, seed,
                 shuffle_buffer: int) -> Iterator[dict[str, np.ndarray]]:
   """`iterate_rows` of ``split`` under the run's split rule, images as references (crops read small windows)."""
   return iterate_rows(data_dir, split, batch_size=_LOADER_BATCH, seed=seed, shuffle_buffer=shuffle_buffer,
@@ -74,7 +73,7 @@ def _split_rows(data_dir: str | os.PathLike, config: TrainConfig, split: str, se
                       stack_images=False)
 
 
-def _rows(data_dir: str | os.PathLike, config: TrainConfig, split: str, seed, shuffle_buffer: int,
+def _rows(data_dir: DataDirs, config: TrainConfig, split: str, seed, shuffle_buffer: int,
           gripper: str) -> Iterator[dict[str, np.ndarray]]:
   """Loader batches restricted to ``gripper``'s rows (batches without any are skipped)."""
   code = GRIPPER_NAMES.index(gripper)
@@ -107,7 +106,7 @@ def _epoch_seed(seed: int, epoch: int) -> list[int]:
   return [seed, epoch, 0x7A1]
 
 
-def train_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str, epoch: int, stats: GripperStats,
+def train_batches(data_dir: DataDirs, config: TrainConfig, gripper: str, epoch: int, stats: GripperStats,
                   skip: int = 0) -> Iterator[dict[str, np.ndarray]]:
   """Training batches ``skip``, ``skip + 1``, ... of ``epoch`` for ``gripper`` (see the module doc).
 
@@ -152,12 +151,12 @@ def _balanced_soft_targets(soft: np.ndarray, loop: LoopConfig, w_pos: float,
   return (soft * w_pos / weights).astype(np.float32), weights.astype(np.float32)
 
 
-def eval_batches(data_dir: str | os.PathLike, config: TrainConfig, gripper: str,
+def eval_batches(data_dir: DataDirs, config: TrainConfig, gripper: str,
                  split: str = 'val') -> Iterator[dict[str, np.ndarray]]:
   """Every row of ``gripper`` in ``split`` (``'train'``, ``'val'`` or ``'all'``), once, in batches of exactly
   ``config.loop.eval_batch_size`` (the last padded): dicts as `train_batches` plus ``mask`` (B,) bool (False on
-  padding), ``robust_probability`` (B,) and where each row came from, ``shard_index``, ``row_index`` (in its
-  shard), ``image_index`` and ``target_slot`` (B,) int32."""
+  padding), ``robust_probability`` (B,) and where each row came from, ``dataset_index``, ``shard_index``,
+  ``row_index`` (in its shard), ``image_index`` and ``target_slot`` (B,) int32."""
   splits = ('train', 'val') if split == 'all' else (split,)
   size = config.loop.eval_batch_size
 
@@ -189,7 +188,7 @@ def _normalization_sample(rows: dict[str, np.ndarray], gripper: str, config: Tra
   return ex['crops'], poses
 
 
-def _chosen_rows(data_dir: str | os.PathLike, config: TrainConfig, chosen: dict[str, np.ndarray],
+def _chosen_rows(data_dir: DataDirs, config: TrainConfig, chosen: dict[str, np.ndarray],
                  rng: np.random.Generator) -> dict[str, list]:
   """A second pass over the training split in the first pass's order: the (crops, poses) of the rows of each
   gripper at the sorted positions ``chosen[gripper]`` (indices among that gripper's rows)."""
@@ -206,7 +205,7 @@ def _chosen_rows(data_dir: str | os.PathLike, config: TrainConfig, chosen: dict[
   return samples
 
 
-def dataset_stats(data_dir: str | os.PathLike, config: TrainConfig) -> dict[str, GripperStats]:
+def dataset_stats(data_dir: DataDirs, config: TrainConfig) -> dict[str, GripperStats]:
   """Row and positive counts of each of ``config.grippers`` in the training split, and input normalisation
   fitted on ``config.loop.normalization_rows`` rows of each gripper drawn uniformly at random (without
   replacement, seeded by ``config.seed``) from its training rows, or on all of them when there are fewer.
@@ -233,7 +232,7 @@ def dataset_stats(data_dir: str | os.PathLike, config: TrainConfig) -> dict[str,
                                                       config, rng))
   for gripper in config.grippers:
     if counts[gripper][0] == 0:
-      raise ValueError(f"{os.fspath(data_dir)}: no training rows of gripper '{gripper}' (split by "
+      raise ValueError(f"{dataset_label(data_dir)}: no training rows of gripper '{gripper}' (split by "
                        f"{config.split.by}, val_fraction {config.split.val_fraction}); generate more images or "
                        f"train other grippers (field 'grippers')")
   chosen = {g: np.sort(rng.choice(counts[g][0], limit, replace=False)) for g in config.grippers

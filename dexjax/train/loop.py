@@ -22,6 +22,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
+from dexjax.data.loader import DataDirs, dataset_label
 from dexjax.models.saved import BEST_DIR, GraspQualityModel, save_model
 from dexjax.train.batches import GripperStats, train_batches
 from dexjax.train.checkpoint import Checkpointer, normalization_from_json, normalization_to_json
@@ -61,10 +62,10 @@ def _steps_per_epoch(stats: GripperStats, config: TrainConfig) -> int:
   return max(1, stats.examples_per_epoch(config.loop.class_balance) // config.loop.batch_size)
 
 
-def check_trainable(gripper: str, stats: GripperStats, config: TrainConfig, data_dir: str | os.PathLike = '') -> None:
+def check_trainable(gripper: str, stats: GripperStats, config: TrainConfig, data_dir: DataDirs = '') -> None:
   """Raises ValueError when ``gripper``'s training split cannot teach the network anything: fewer examples per
   epoch than one batch (no step would be taken), or no positive or no negative row (nothing to tell apart)."""
-  where = f'{os.fspath(data_dir)}: ' if data_dir else ''
+  where = f'{dataset_label(data_dir)}: ' if data_dir else ''
   examples = stats.examples_per_epoch(config.loop.class_balance)
   if examples < config.loop.batch_size:
     raise ValueError(f'{where}{gripper}: {examples} training examples per epoch, fewer than one batch: no step '
@@ -88,7 +89,7 @@ class Interrupted(Exception):
   """Raised by `train_gripper` when ``stop_after_steps`` is reached (what a killed run looks like on disk)."""
 
 
-def train_gripper(data_dir: str | os.PathLike, out_dir: str | os.PathLike, config: TrainConfig, gripper: str,
+def train_gripper(data_dir: DataDirs, out_dir: str | os.PathLike, config: TrainConfig, gripper: str,
                   stats: GripperStats, *, resume: bool = False, progress: bool = False,
                   stop_after_steps: int | None = None, log=print, init_params: Any = None) -> dict[str, Any]:
   """Trains ``gripper``'s GQ-CNN for ``config.loop.epochs`` epochs; returns the best epoch's record.

@@ -7,7 +7,9 @@ Round r lives in ``OUT/round-<r>``: ``data`` (a `dexjax.generate` run) and ``tra
   trains from scratch, or from ``init``.
 * Round r > 0 collects on-policy with round r - 1's models (`dexjax.generate.on_policy`: the grasps their CEM
   scores on each image, the top ``policy.top_k`` first, the supervisor's mixed in with probability epsilon) and
-  fine-tunes round r - 1's models on that data.
+  fine-tunes round r - 1's models on that data: on that round's data alone, or (``aggregate``, as DAgger: Ross,
+  Gordon and Bagnell 2011) on every round's data so far; ``base_data`` (e.g. the set ``init`` was trained on) is
+  added to every round's training data, so the models keep seeing the candidates they were first trained on.
 
 Every step resumes: a generation run rerun with the same config continues it (`dexjax.generate.generate_dataset`),
 a training run without ``summary.json`` continues from its checkpoints, a finished one is skipped; so the same
@@ -21,8 +23,10 @@ import dataclasses
 import json
 import os
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, Callable
 
+from dexjax.data.loader import list_shards
 from dexjax.geometry.cache import atomic_write_text
 from dexjax.generate.config import GenerateConfig, with_collection
 from dexjax.train.config import TrainConfig
@@ -48,6 +52,14 @@ def round_configs(generate: GenerateConfig, train: TrainConfig, out_dir: str | o
   return gen, dataclasses.replace(train, init=previous or train.init)
 
 
+def round_training_data(out_dir: str | os.PathLike[str], r: int, base_data: Sequence[str | os.PathLike[str]] = (),
+                        aggregate: bool = False) -> list[Path]:
+  """The dataset directories round ``r`` trains on: ``base_data``, then round ``r``'s collection, or with
+  ``aggregate`` the collections of rounds 0..r."""
+  rounds = range(r + 1) if aggregate else (r,)
+  return [Path(d) for d in base_data] + [round_dirs(out_dir, k)[0] for k in rounds]
+
+
 def _training_state(train_dir: Path) -> str:
   if (train_dir / SUMMARY_FILE).is_file():
     return 'done'
@@ -62,9 +74,9 @@ def _record(out: Path, entry: dict[str, Any]) -> None:
 
 
 def run_rounds(generate: GenerateConfig, train: TrainConfig, out_dir: str | os.PathLike[str], rounds: int,
-               images_per_round: int, *, init: str | None = None, workers: int = 1, backend: str = 'process',
-               cache_dir: str | None = None, progress: bool = True, log: Callable[..., None] = print
-               ) -> list[dict[str, Any]]:
+               images_per_round: int, *, init: str | None = None, base_data: Sequence[str | os.PathLike[str]] = (),
+               aggregate: bool = False, workers: int = 1, backend: str = 'process', cache_dir: str | None = None,
+               progress: bool = True, log: Callable[..., None] = print) -> list[dict[str, Any]]:
   """Runs (or resumes) ``rounds`` on-policy rounds into ``out_dir``; returns the records of ``rounds.json``.
 
   Args:
@@ -75,10 +87,13 @@ def run_rounds(generate: GenerateConfig, train: TrainConfig, out_dir: str | os.P
     rounds: number of rounds >= 1.
     images_per_round: images each round's collection renders.
     init: models to collect round 0 with and start its training from (None: the config's tau, from scratch).
+    base_data: dataset directories every round also trains on (`round_training_data`).
+    aggregate: each round trains on every round's collection so far, not only its own.
     workers, backend, cache_dir, progress: as `dexjax.generate.generate_dataset`.
     log: receives one line per step.
 
   Raises:
+    FileNotFoundError: a ``base_data`` directory holds no shards.
     ValueError: ``rounds`` or ``images_per_round`` < 1; what `generate_dataset` and `train_run` raise.
     RuntimeError: some shards of a round's collection failed (rerun to retry them; nothing is trained on a
       partial round).
@@ -87,6 +102,10 @@ def run_rounds(generate: GenerateConfig, train: TrainConfig, out_dir: str | os.P
   from dexjax.train.run import train_run  # pylint: disable=g-import-not-at-top
   if rounds < 1 or images_per_round < 1:
     raise ValueError(f'rounds, images_per_round: expected integers >= 1, got {rounds}, {images_per_round}')
+  for directory in base_data:  # before the first (long) collection
+    if not list_shards(directory):
+      raise FileNotFoundError(f'{os.fspath(directory)}: no dataset shards (shard-*.npz) to train every round on '
+                              f'(--base-data); expected a python -m dexjax.generate run')
   out = Path(out_dir)
   out.mkdir(parents=True, exist_ok=True)
   for r in range(rounds):
@@ -107,12 +126,14 @@ def run_rounds(generate: GenerateConfig, train: TrainConfig, out_dir: str | os.P
                   'collection': dataclasses.asdict(gen.collection), 'grippers': data['grippers'],
                   'seconds': data['seconds']})
     start = 'resumed' if state == 'resume' else f'from {tr.init or "scratch"}'
-    log(f'round {r}: training into {train_dir} ({start})')
-    summary = train_run(tr, data_dir, train_dir, resume=state == 'resume', progress=progress, log=log)
+    data_dirs = round_training_data(out, r, base_data, aggregate)
+    log(f'round {r}: training into {train_dir} ({start}) on {len(data_dirs)} dataset(s)')
+    summary = train_run(tr, data_dirs, train_dir, resume=state == 'resume', progress=progress, log=log)
     _record(out, {'round': r, 'step': 'train', 'out': os.fspath(train_dir), 'init': tr.init,
+                  'data': [os.fspath(d) for d in data_dirs],
                   'grippers': summary['grippers'], 'seconds': summary['seconds']})
   path = out / ROUNDS_FILE
   return json.loads(path.read_text()) if path.is_file() else []
 
 
-__all__ = ['ROUNDS_FILE', 'round_configs', 'round_dirs', 'run_rounds']
+__all__ = ['ROUNDS_FILE', 'round_configs', 'round_dirs', 'round_training_data', 'run_rounds']

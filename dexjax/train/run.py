@@ -20,7 +20,7 @@ import yaml
 
 from dexjax.cli import OutputError, check_output_dir
 from dexjax.config import ConfigError, load_yaml
-from dexjax.data.loader import list_shards
+from dexjax.data.loader import DataDirs, dataset_dirs, list_shards
 from dexjax.geometry.cache import atomic_write_text, default_cache_dir
 from dexjax.train.batches import GripperStats, dataset_stats
 from dexjax.train.checkpoint import normalization_to_json
@@ -135,21 +135,24 @@ def _stats_json(stats: dict[str, GripperStats]) -> dict[str, Any]:
           for g, s in stats.items()}
 
 
-def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | os.PathLike, *, resume: bool = False,
+def train_run(config: TrainConfig, data_dir: DataDirs, out_dir: str | os.PathLike, *, resume: bool = False,
               progress: bool = True, log=print) -> dict[str, Any]:
-  """Trains one GQ-CNN per gripper of ``config`` on ``data_dir`` into ``out_dir``; returns the summary
-  (``grippers``: the best validation record of each, ``seconds``, ``data``, ``out``).
+  """Trains one GQ-CNN per gripper of ``config`` on ``data_dir`` (a dataset directory, or a sequence of them:
+  their union, `dexjax.data.iterate_rows`) into ``out_dir``; returns the summary (``grippers``: the best
+  validation record of each, ``seconds``, ``data``: the directory or the list of them, ``out``).
 
   Raises:
-    FileNotFoundError: ``data_dir`` holds no shards.
+    FileNotFoundError: a directory of ``data_dir`` holds no shards.
     OutputError: ``out_dir`` is not a new or empty directory (a new run) or not an earlier run (``resume``).
     ValueError: a gripper's training split cannot teach anything (`dexjax.train.check_trainable`: one label
       only, or less than a batch); a resumed run's config differs.
   """
   out, start = Path(out_dir), time.perf_counter()
-  if not os.path.isdir(data_dir) or not list_shards(data_dir):
-    raise FileNotFoundError(f'{os.fspath(data_dir)}: no dataset shards (shard-*.npz); make one with python -m '
-                            f'dexjax.generate, or leave out --data for the built-in quick-start set')
+  dirs = dataset_dirs(data_dir)
+  for directory in dirs:
+    if not directory.is_dir() or not list_shards(directory):
+      raise FileNotFoundError(f'{os.fspath(directory)}: no dataset shards (shard-*.npz); make one with python -m '
+                              f'dexjax.generate, or leave out --data for the built-in quick-start set')
   if is_main_process():
     check_run_dir(out, resume=resume)
   config, init = apply_init(config)
@@ -174,7 +177,8 @@ def train_run(config: TrainConfig, data_dir: str | os.PathLike, out_dir: str | o
     results[gripper] = train_gripper(data_dir, out, config, gripper, stats[gripper], resume=resume,
                                      progress=progress, log=log,
                                      init_params=init[gripper].params if gripper in init else None)
-  summary = {'grippers': results, 'seconds': time.perf_counter() - start, 'data': os.fspath(data_dir),
+  data = [os.fspath(d) for d in dirs]
+  summary = {'grippers': results, 'seconds': time.perf_counter() - start, 'data': data[0] if len(data) == 1 else data,
              'out': os.fspath(out)}
   if is_main_process():
     atomic_write_text(out / SUMMARY_FILE, json.dumps(summary, indent=1) + '\n')

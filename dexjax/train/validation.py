@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import dataclasses
-import os
 from typing import Any
 
 import jax
@@ -12,7 +11,7 @@ import numpy as np
 import optax
 from tqdm.auto import tqdm
 
-from dexjax.data.loader import row_groups
+from dexjax.data.loader import DataDirs, dataset_label, row_groups
 from dexjax.models.saved import GraspQualityModel
 from dexjax.train.batches import eval_batches
 from dexjax.train.config import TrainConfig
@@ -24,18 +23,18 @@ def _logits(model: GraspQualityModel, crops: jax.Array, poses: jax.Array) -> jax
   return model.logits(crops, poses)
 
 
-def predict_rows(model: GraspQualityModel, data_dir: str | os.PathLike, config: TrainConfig = TrainConfig(),
+def predict_rows(model: GraspQualityModel, data_dir: DataDirs, config: TrainConfig = TrainConfig(),
                  split: str = 'val', progress: bool = False) -> dict[str, np.ndarray]:
   """``model``'s prediction for every row of its gripper in ``split`` (``'train'``, ``'val'`` or ``'all'``).
 
   ``config`` supplies the split rule (``split`` section) and the evaluation batch size; the crop size and window
   are the model's. Returns (N,) arrays in the dataset's reading order: ``scores`` p(success), ``labels`` int32,
   ``robust_probability`` (the label's Monte-Carlo estimate), ``loss`` (the cross-entropy of each row), and where
-  each row came from, ``shard_index``, ``row_index`` (its index in the shard's rows), ``image_index`` and
-  ``target_slot`` (see `dexjax.data.row_groups`).
+  each row came from, ``dataset_index``, ``shard_index``, ``row_index`` (its index in the shard's rows),
+  ``image_index`` and ``target_slot`` (see `dexjax.data.row_groups`).
   """
   config = dataclasses.replace(config, model=model.config, crop_window=model.crop_window)
-  keys = ('labels', 'robust_probability', 'shard_index', 'row_index', 'image_index', 'target_slot')
+  keys = ('labels', 'robust_probability', 'dataset_index', 'shard_index', 'row_index', 'image_index', 'target_slot')
   parts: dict[str, list] = {k: [] for k in ('scores', 'loss', *keys)}
   batches = eval_batches(data_dir, config, model.gripper, split)
   for batch in tqdm(batches, desc=f'evaluate {model.gripper}', unit='batch', disable=not progress, leave=False):
@@ -50,7 +49,7 @@ def predict_rows(model: GraspQualityModel, data_dir: str | os.PathLike, config: 
   return {k: np.concatenate(v) if v else np.zeros(0, empty.get(k, np.int32)) for k, v in parts.items()}
 
 
-def evaluate_model(model: GraspQualityModel, data_dir: str | os.PathLike, config: TrainConfig = TrainConfig(),
+def evaluate_model(model: GraspQualityModel, data_dir: DataDirs, config: TrainConfig = TrainConfig(),
                    split: str = 'val', progress: bool = False, interval_by: str | None = None,
                    num_resamples: int = 1000) -> dict[str, Any]:
   """Metrics of ``model`` on the rows of its gripper in ``split`` (``'train'``, ``'val'`` or ``'all'``).
@@ -64,13 +63,14 @@ def evaluate_model(model: GraspQualityModel, data_dir: str | os.PathLike, config
   metrics = classification_metrics(rows['scores'], rows['labels'])
   metrics['loss'] = float(rows['loss'].mean()) if len(rows['labels']) else None
   if interval_by is not None:
-    groups = row_groups(data_dir, rows['shard_index'], rows['image_index'], rows['target_slot'], interval_by)
+    groups = row_groups(data_dir, rows['shard_index'], rows['image_index'], rows['target_slot'], interval_by,
+                        rows['dataset_index'])
     metrics['intervals'] = {'by': interval_by, **bootstrap_intervals(rows['scores'], rows['labels'], groups,
                                                                      num_resamples)}
   return metrics
 
 
-def sample_examples(model: GraspQualityModel, data_dir: str | os.PathLike, num: int, config: TrainConfig = TrainConfig(),
+def sample_examples(model: GraspQualityModel, data_dir: DataDirs, num: int, config: TrainConfig = TrainConfig(),
                     split: str = 'val', seed: int = 0) -> dict[str, np.ndarray]:
   """A uniformly random subset of ``num`` rows of ``model``'s gripper in ``split``, as the model sees them:
   ``{'crops': (n, S, S, 1) metres, 'poses': (n, pose_dim), 'labels': (n,)}``, n = min(num, rows). One streaming
@@ -87,7 +87,7 @@ def sample_examples(model: GraspQualityModel, data_dir: str | os.PathLike, num: 
       order = np.argpartition(kept['key'], num)[:num]
       kept = {k: v[order] for k, v in kept.items()}
   if kept is None:
-    raise ValueError(f'{os.fspath(data_dir)}: no {model.gripper} rows in split {split!r}')
+    raise ValueError(f'{dataset_label(data_dir)}: no {model.gripper} rows in split {split!r}')
   order = np.argsort(kept.pop('key'))
   return {k: v[order] for k, v in kept.items()}
 
