@@ -33,7 +33,7 @@ import time
 from typing import Any
 from pathlib import Path
 
-from dexjax.data import list_shards, shard_path
+from dexjax.data import dataset_dirs, list_shards, shard_path
 from dexjax.models import load, num_parameters, save_model_file
 from dexjax.models.shipped import pretrained_path
 from dexjax.train import evaluate_model, load_train_config, read_records, train_run
@@ -130,19 +130,21 @@ def _ship(args) -> dict:
   config = load_train_config(run / CONFIG_FILE)
   summary = json.loads((run / SUMMARY_FILE).read_text())
   stats = json.loads((run / STATS_FILE).read_text())
-  data_config = json.loads((Path(args.data) / 'config.json').read_text())
+  data_configs = [json.loads((Path(d) / 'config.json').read_text())['config'] for d in args.data]
+  data_config = data_configs[0]  # the camera and grippers of the first dataset (a union shares them)
+  objects = list(dict.fromkeys(s for c in data_configs for s in c['objects']['sources']))
   models = _run_models(run, args.grippers, args.symmetric_views)
   scores = score_run(run, evals, models)
   written = {}
   for gripper, model in models.items():
     info = {
-        'data': {'command': args.data_command, 'objects': data_config['config']['objects']['sources'],
-                 'shards': len(list_shards(summary['data'])), 'train_rows': stats[gripper]['train_rows'],
-                 'positive_rate': stats[gripper]['positive_rate'],
-                 'camera': data_config['config']['camera'], 'gripper': data_config['config']['grippers'][gripper]},
+        'data': {'command': args.data_command, 'objects': objects,
+                 'shards': sum(len(list_shards(d)) for d in dataset_dirs(summary['data'])),
+                 'train_rows': stats[gripper]['train_rows'], 'positive_rate': stats[gripper]['positive_rate'],
+                 'camera': data_config['camera'], 'gripper': data_config['grippers'][gripper]},
         'network': {'crop_size': model.config.crop_size, 'crop_window': model.crop_window,
                     'parameters': num_parameters(model.params), 'symmetric_views': model.symmetric_views},
-        'training': {'command': args.train_command, 'seconds': summary['seconds'],
+        'training': {'command': args.train_command, 'seconds': summary['seconds'], 'init': config.init,
                      'epochs': config.loop.epochs, 'best': summary['grippers'][gripper]},
         'metrics': scores[gripper], 'date': time.strftime('%Y-%m-%d')}
     written[gripper] = os.fspath(save_model_file(pretrained_path(gripper), model, info))
@@ -304,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
   h = sub.add_parser('ship')
   h.add_argument('--run', required=True)
   h.add_argument('--eval', nargs='+', default=[])
-  h.add_argument('--data', required=True)
+  h.add_argument('--data', nargs='+', required=True, help='the dataset(s) the run trained on (their configs)')
   h.add_argument('--data-command', required=True)
   h.add_argument('--train-command', required=True)
   h.add_argument('--grippers', nargs='+', help="only these grippers' models (default: every one of the run)")
