@@ -10,8 +10,8 @@ the candidates are the grasps the previous round's policy scores: on-policy synt
 to resume; finished rounds are skipped. ``DIR/round-<R-1>/train`` holds the final models (``--model`` of
 ``python -m dexjax.plan`` and ``python -m dexjax.benchmark``). Each round trains on its own collection, with
 --aggregate on every round's so far (DAgger), and with --base-data also on those datasets (e.g. the set --init was
-trained on, so the models keep knowing the random candidates they started from). Exit code 0, 1 when some shards of a collection
-failed (rerun to retry them), 2 for bad input (docs/errors.md).
+trained on, so the models keep knowing the random candidates they started from). Exit code 0, 1 when some shards
+of a collection failed (rerun to retry them), 2 for bad input (docs/errors.md).
 """
 
 from __future__ import annotations
@@ -56,8 +56,8 @@ def main(argv: list[str] | None = None) -> int:
   train = load_train_config(args.train_config).validate(args.train_config or 'the default config')
   log = (lambda *a, **k: print(*a, file=sys.stderr, **k)) if args.json else print
   try:
-    records = run_rounds(generate, train, args.out, args.rounds, args.images, init=args.init, base_data=args.base_data,
-                         aggregate=args.aggregate, workers=args.workers,
+    records = run_rounds(generate, train, args.out, args.rounds, args.images, init=args.init,
+                         base_data=args.base_data, aggregate=args.aggregate, workers=args.workers,
                          cache_dir=args.cache_dir, progress=not args.json, log=log)
   except RuntimeError as e:  # some shards of a collection failed: rerun to retry them
     return report_failure(e)

@@ -233,5 +233,5 @@ def row_groups(out_dir: DataDirs, shard_index: np.ndarray, image_index: np.ndarr
   return keys.astype(str)
 
 
-__all__ = ["TRAIN", "VAL", "DataDirs", "dataset_dirs", "dataset_label", "dataset_shards", "iterate_rows", "list_shards", "row_groups",
-           "split_images"]
+__all__ = ["TRAIN", "VAL", "DataDirs", "dataset_dirs", "dataset_label", "dataset_shards", "iterate_rows",
+           "list_shards", "row_groups", "split_images"]

@@ -25,7 +25,8 @@ from dexjax.train.config import LoopConfig, TrainConfig
 from dexjax.train.data import gripper_examples, label_probability
 
 _LOADER_BATCH = 256  # rows per loader batch (both grippers); only the grouping of reads, not the result
-_SOURCE_FIELDS = ('dataset_index', 'shard_index', 'row_index', 'image_index', 'target_slot')  # where an evaluated row came from
+# where an evaluated row came from
+_SOURCE_FIELDS = ('dataset_index', 'shard_index', 'row_index', 'image_index', 'target_slot')
 
 
 @dataclasses.dataclass(frozen=True)
