@@ -57,7 +57,7 @@ def _run_config(checkpoint: Path):
 @command
 def main(argv: list[str] | None = None) -> int:
   args = _parser().parse_args(argv)
-  from dexjax.data.loader import list_shards  # pylint: disable=g-import-not-at-top (slow imports after parsing)
+  from dexjax.data.loader import require_shards  # pylint: disable=g-import-not-at-top (slow imports after parsing)
   from dexjax.data.shards import GRIPPER_NAMES  # pylint: disable=g-import-not-at-top
   from dexjax.models.shipped import PRETRAINED, held_grippers, load_models  # pylint: disable=g-import-not-at-top
   from dexjax.train.config import TrainConfig  # pylint: disable=g-import-not-at-top
@@ -67,8 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     raise ValueError(f'--batch-size: expected an integer >= 1, got {args.batch_size}')
   if args.resamples < 1:
     raise ValueError(f'--resamples: expected an integer >= 1, got {args.resamples}')
-  if not os.path.isdir(args.data) or not list_shards(args.data):
-    raise FileNotFoundError(f'{args.data}: no dataset shards (shard-*.npz)')
+  require_shards(args.data)
   config = _run_config(Path(checkpoint)) if checkpoint != PRETRAINED else TrainConfig()
   config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, eval_batch_size=args.batch_size))
   wanted = (args.gripper,) if args.gripper else GRIPPER_NAMES

@@ -98,6 +98,20 @@ def dataset_dirs(data: DataDirs) -> tuple[Path, ...]:
   return dirs
 
 
+def require_shards(data: DataDirs, hint: str = "") -> tuple[Path, ...]:
+  """`dataset_dirs` of ``data``, each checked to be a directory holding finished shards.
+
+  Raises:
+    FileNotFoundError: naming the first directory that is not one or holds no shards, then ``hint`` (what to do).
+  """
+  dirs = dataset_dirs(data)
+  for directory in dirs:
+    if not directory.is_dir() or not list_shards(directory):
+      raise FileNotFoundError(f"{os.fspath(directory)}: no dataset shards (shard-*.npz)"
+                              + (f"; {hint}" if hint else ""))
+  return dirs
+
+
 def dataset_label(data: DataDirs) -> str:
   """``data``'s directories for messages: ``"a"``, or ``"a + b + c"`` for a union."""
   return " + ".join(os.fspath(d) for d in dataset_dirs(data))
@@ -234,4 +248,4 @@ def row_groups(out_dir: DataDirs, shard_index: np.ndarray, image_index: np.ndarr
 
 
 __all__ = ["TRAIN", "VAL", "DataDirs", "dataset_dirs", "dataset_label", "dataset_shards", "iterate_rows",
-           "list_shards", "row_groups", "split_images"]
+           "list_shards", "require_shards", "row_groups", "split_images"]

@@ -26,7 +26,7 @@ from pathlib import Path
 from collections.abc import Sequence
 from typing import Any, Callable
 
-from dexjax.data.loader import list_shards
+from dexjax.data.loader import require_shards
 from dexjax.geometry.cache import atomic_write_text
 from dexjax.generate.config import GenerateConfig, with_collection
 from dexjax.train.config import TrainConfig
@@ -102,10 +102,8 @@ def run_rounds(generate: GenerateConfig, train: TrainConfig, out_dir: str | os.P
   from dexjax.train.run import train_run  # pylint: disable=g-import-not-at-top
   if rounds < 1 or images_per_round < 1:
     raise ValueError(f'rounds, images_per_round: expected integers >= 1, got {rounds}, {images_per_round}')
-  for directory in base_data:  # before the first (long) collection
-    if not list_shards(directory):
-      raise FileNotFoundError(f'{os.fspath(directory)}: no dataset shards (shard-*.npz) to train every round on '
-                              f'(--base-data); expected a python -m dexjax.generate run')
+  if base_data:  # before the first (long) collection
+    require_shards(base_data, 'every round trains on it (--base-data): expected a python -m dexjax.generate run')
   out = Path(out_dir)
   out.mkdir(parents=True, exist_ok=True)
   for r in range(rounds):

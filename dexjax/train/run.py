@@ -20,7 +20,7 @@ import yaml
 
 from dexjax.cli import OutputError, check_output_dir
 from dexjax.config import ConfigError, load_yaml
-from dexjax.data.loader import DataDirs, dataset_dirs, list_shards
+from dexjax.data.loader import DataDirs, list_shards, require_shards
 from dexjax.geometry.cache import atomic_write_text, default_cache_dir
 from dexjax.train.batches import GripperStats, dataset_stats
 from dexjax.train.checkpoint import normalization_to_json
@@ -148,11 +148,8 @@ def train_run(config: TrainConfig, data_dir: DataDirs, out_dir: str | os.PathLik
       only, or less than a batch); a resumed run's config differs.
   """
   out, start = Path(out_dir), time.perf_counter()
-  dirs = dataset_dirs(data_dir)
-  for directory in dirs:
-    if not directory.is_dir() or not list_shards(directory):
-      raise FileNotFoundError(f'{os.fspath(directory)}: no dataset shards (shard-*.npz); make one with python -m '
-                              f'dexjax.generate, or leave out --data for the built-in quick-start set')
+  dirs = require_shards(data_dir, 'make one with python -m dexjax.generate, or leave out --data for the built-in '
+                                  'quick-start set')
   if is_main_process():
     check_run_dir(out, resume=resume)
   config, init = apply_init(config)
@@ -178,8 +175,8 @@ def train_run(config: TrainConfig, data_dir: DataDirs, out_dir: str | os.PathLik
                                      progress=progress, log=log,
                                      init_params=init[gripper].params if gripper in init else None)
   data = [os.fspath(d) for d in dirs]
-  summary = {'grippers': results, 'seconds': time.perf_counter() - start, 'data': data[0] if len(data) == 1 else data,
-             'out': os.fspath(out)}
+  summary = {'grippers': results, 'seconds': time.perf_counter() - start,
+             'data': data[0] if len(data) == 1 else data, 'out': os.fspath(out)}
   if is_main_process():
     atomic_write_text(out / SUMMARY_FILE, json.dumps(summary, indent=1) + '\n')
     log(format_summary(results, out))
