@@ -150,19 +150,10 @@ def main(argv: list[str] | None = None) -> int:
   _check_args(args)
   import dataclasses  # pylint: disable=g-import-not-at-top (slow imports after the checks)
   from dexjax.bench.protocol import Protocol  # pylint: disable=g-import-not-at-top
-  from dexjax.bench.runner import BenchmarkSpec, check_run_dir, run_benchmark  # pylint: disable=g-import-not-at-top
-  from dexjax.config import load_yaml, validate_generate_config  # pylint: disable=g-import-not-at-top
-  from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top
-  from dexjax.bench.runner import benchmark_noise  # pylint: disable=g-import-not-at-top
-  from dexjax.render.noise import SensorNoise  # pylint: disable=g-import-not-at-top
+  from dexjax.bench.runner import (  # pylint: disable=g-import-not-at-top
+      BenchmarkSpec, check_run_dir, load_benchmark_config, run_benchmark)
   check_run_dir(args.out)  # before the configs: a folder of the user's fails at once (the settings: run_benchmark)
-  config = load_generate_config(args.config, camera_config=args.camera_config, objects=args.objects)
-  validate_generate_config(config, args.config or 'the default config')
-  configured_noise = args.config is not None and 'noise' in (load_yaml(args.config) or {})
-  if args.no_noise:
-    config = dataclasses.replace(config, noise=SensorNoise())
-  elif not configured_noise:
-    config = dataclasses.replace(config, noise=benchmark_noise())
+  config = load_benchmark_config(args.objects, args.config, args.camera_config, noise=not args.no_noise)
   from dexjax.bench.execution import PhysicsSettings  # pylint: disable=g-import-not-at-top
   from dexjax.bench.failure_memory import FailureMemory  # pylint: disable=g-import-not-at-top
   physics = PhysicsSettings()

@@ -29,6 +29,7 @@ from dexjax import cli
 from dexjax.config import ConfigError, validate_heap_distribution, validate_perturbations
 from dexjax.evaluate import main as evaluate_main
 from dexjax.rounds import main as rounds_main
+from dexjax.replay import main as replay_main
 from dexjax.generate.__main__ import main as generate_main
 from dexjax.objects.__main__ import main as objects_main
 from dexjax.quality.__main__ import main as quality_main
@@ -79,7 +80,7 @@ def _never(*_, **__):
 
 
 @pytest.mark.parametrize('main', [quality_main, objects_main, sim_main, render_main, generate_main, train_main,
-                                  evaluate_main, rounds_main])
+                                  evaluate_main, rounds_main, replay_main])
 def test_every_cli_reports_through_the_shared_helper(main):
   assert getattr(main, '__wrapped__', None) is not None  # dexjax.cli.command
 

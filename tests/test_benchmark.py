@@ -116,3 +116,43 @@ def test_the_benchmark_config_takes_one_source_or_a_sequence():
   from dexjax.bench.runner import benchmark_config
   assert benchmark_config('procedural:L1/0:3').objects.sources == ('procedural:L1/0:3',)
   assert benchmark_config(['a.obj', 'b.obj'], noise=False).objects.sources == ('a.obj', 'b.obj')
+
+
+def test_every_recorded_attempt_replays_to_its_verdicts(reference, tmp_path, capsys):
+  """``python -m dexjax.replay``: each attempt judged again from the bin it started from gives the recorded
+  verdicts (the fill for attempt 0, the logged state after); a log whose verdict was altered is caught."""
+  from dexjax.replay import main as replay
+  records = read_attempts(reference / 'attempts.jsonl')
+  assert all(r['width'] == 0.0 for r in records if r['gripper'] == 'suction')
+  assert any(r['gripper'] == 'parallel_jaw' and r['width'] > 0.0 for r in records)  # the jaws' opening is kept
+  for policy in ('suction_heuristic', 'random'):
+    capsys.readouterr()
+    assert replay([str(reference), '--trial', '1', '--policy', policy, '--json']) == 0
+    rows = json.loads(capsys.readouterr().out)
+    mine = [r for r in records if r['policy'] == policy and r['trial'] == 1]
+    assert [row['attempt'] for row in rows] == sorted(r['attempt'] for r in mine) and rows[0]['attempt'] == 0
+    assert all(row['reproduced'] and set(row['replayed']) == {'analytic', 'physics'} for row in rows)
+  # An altered verdict is not reproduced (exit 1), and says so.
+  altered = tmp_path / 'altered'
+  altered.mkdir()
+  (altered / 'benchmark.json').write_text((reference / 'benchmark.json').read_text())
+  lines = (reference / 'attempts.jsonl').read_text().splitlines()
+  first = json.loads(lines[0])
+  first['verdicts']['physics']['success'] = not first['verdicts']['physics']['success']
+  (altered / 'attempts.jsonl').write_text('\n'.join([json.dumps(first), *lines[1:]]) + '\n')
+  capsys.readouterr()
+  assert replay([str(altered), '--trial', str(first['trial']), '--attempt', str(first['attempt']),
+                 '--policy', first['policy']]) == 1
+  assert 'DIFFERS' in capsys.readouterr().out
+  # Bad input: one line naming what is wrong.
+  for argv, message in (([str(tmp_path), '--trial', '0'], 'expected a benchmark run directory (no benchmark.json)'),
+                        ([str(reference), '--trial', '0'], '--policy: expected one of suction_heuristic, random'),
+                        ([str(reference), '--trial', '7', '--policy', 'random'], '--policy random --trial 7: not in'),
+                        ([str(reference), '--trial', '0', '--policy', 'random', '--attempt', '99'],
+                         '--attempt: expected 0-'),
+                        ([str(reference), '--trial', '0', '--policy', 'random', '--no-noise'],
+                         'config_fingerprint: the run')):
+    capsys.readouterr()
+    assert replay(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('error: ') and message in err and len(err.strip().splitlines()) == 1

@@ -23,6 +23,7 @@ import json
 import os
 import re
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -154,6 +155,24 @@ def benchmark_config(objects: str | list[str] | tuple[str, ...], config: Generat
                              noise=benchmark_noise() if noise else SensorNoise())
 
 
+def load_benchmark_config(objects: Sequence[str], config_path: str | None = None, camera_config: str | None = None,
+                          noise: bool = True) -> GenerateConfig:
+  """The bins' config as ``python -m dexjax.benchmark`` builds it: the generation config file ``config_path``
+  (default: Dex-Net 4.0's values) with ``camera_config`` and the benchmark's ``objects``, validated; its sensor
+  noise is the file's ``noise`` section when it has one, else the benchmark's (`benchmark_noise`); none at all
+  without ``noise``. Raises ValueError (a bad file or value, named) or OSError (an unreadable file)."""
+  from dexjax.config import load_yaml, validate_generate_config  # pylint: disable=g-import-not-at-top
+  from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top
+  from dexjax.render.noise import SensorNoise  # pylint: disable=g-import-not-at-top
+  config = load_generate_config(config_path, camera_config=camera_config, objects=list(objects))
+  validate_generate_config(config, config_path or 'the default config')
+  if not noise:
+    return dataclasses.replace(config, noise=SensorNoise())
+  if config_path is not None and 'noise' in (load_yaml(config_path) or {}):
+    return config
+  return dataclasses.replace(config, noise=benchmark_noise())
+
+
 def pairs(spec: BenchmarkSpec) -> list[tuple[str, int]]:
   """Every (policy, trial) of the run, in task-index order."""
   return [(p, t) for p in spec.policies for t in range(spec.protocol.trials)]
@@ -182,10 +201,15 @@ def _worker_state(spec: BenchmarkSpec, cache_dir: str | None) -> dict[str, Any]:
         policy = dataclasses.replace(policy, loads=spec.supervisor_loads, fallback=spec.supervisor_fallback,
                                      lift_first=spec.supervisor_lift_first)
       planners[name] = policy if privileged else functools.partial(lambda key, obs, p: plan(key, obs, p), p=policy)
-    judges = {'analytic': analytic_judge(world, known_mass=spec.known_mass),
-              'physics': physics_judge(world, spec.physics)}
+    judges = benchmark_judges(world, spec)
     _WORKER.update(key=key, world=world, planners=planners, judges=judges)
   return _WORKER
+
+
+def benchmark_judges(world: Any, spec: BenchmarkSpec) -> dict[str, Any]:
+  """The run's judges of ``world`` (a `PickingWorld`), in the order that draws their keys (`attempt_keys`):
+  ``{'analytic': ..., 'physics': ...}``."""
+  return {'analytic': analytic_judge(world, known_mass=spec.known_mass), 'physics': physics_judge(world, spec.physics)}
 
 
 def release_worker() -> None:
@@ -430,5 +454,5 @@ def summarize_run(records: list[dict[str, Any]], spec: BenchmarkSpec, settings: 
 
 __all__ = ['BENCHMARK_NOISE_SETTINGS', 'BenchmarkSpec', 'FIGURE_FILES', 'JUDGES', 'LOG_FILE', 'RESULTS_FILE',
            'RESULTS_KEYS', 'SETTINGS_FILE', 'SETTINGS_KEYS', 'benchmark_config', 'benchmark_noise', 'check_models',
-           'check_objects', 'check_run_dir', 'pairs', 'release_worker', 'run_benchmark', 'summarize_run',
-           'unfinished']
+           'check_objects', 'check_run_dir', 'benchmark_judges', 'load_benchmark_config', 'pairs', 'release_worker',
+           'run_benchmark', 'summarize_run', 'unfinished']

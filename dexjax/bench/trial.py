@@ -49,7 +49,19 @@ def trial_key(seed: int, trial: int) -> jax.Array:
   return jax.random.fold_in(jax.random.key(seed), trial)
 
 
-def _attempt_keys(key: jax.Array, attempt: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+def trial_camera(world: PickingWorld, key: jax.Array) -> Camera:
+  """The camera of the trial of key ``key`` (`trial_key`): drawn from the world's camera distribution."""
+  return run_camera(jax.random.fold_in(key, 1), world.config)
+
+
+def trial_fill(world: PickingWorld, key: jax.Array, count: int) -> BinState:
+  """The bin the trial of key ``key`` (`trial_key`) starts from: ``count`` objects dropped and settled."""
+  return world.fill(jax.random.fold_in(key, 0), count)
+
+
+def attempt_keys(key: jax.Array, attempt: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+  """The keys of attempt ``attempt`` of the trial of key ``key``: sensor noise, planning and judging (judge ``j``
+  of the trial's judges, in their order, draws with ``jax.random.fold_in(judging, j)``)."""
   noise, plan, judge = jax.random.split(jax.random.fold_in(jax.random.fold_in(key, 2), attempt), 3)
   return noise, plan, judge
 
@@ -88,9 +100,11 @@ def _planner_of(planner: Any, world: PickingWorld, state: BinState, camera: Came
 
 def _action_fields(action: GraspAction | None) -> dict[str, Any]:
   if action is None:
-    return {'gripper': None, 'q': None, 'center': None, 'angle': None, 'depth': None, 'approach_angle': None}
+    return {'gripper': None, 'q': None, 'center': None, 'angle': None, 'depth': None, 'approach_angle': None,
+            'width': None}
   return {'gripper': action.gripper_name, 'q': float(action.probability), 'center': np.asarray(action.center).tolist(),
-          'angle': float(action.angle), 'depth': float(action.depth), 'approach_angle': float(action.approach_angle)}
+          'angle': float(action.angle), 'depth': float(action.depth), 'approach_angle': float(action.approach_angle),
+          'width': float(action.width)}
 
 
 def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge], *, policy: str, trial: int,
@@ -125,20 +139,20 @@ def run_trial(world: PickingWorld, planner: Planner, judges: Mapping[str, Judge]
   if records and records[-1]['stop'] is not None:
     return records
   key = trial_key(seed, trial)
-  camera = run_camera(jax.random.fold_in(key, 1), world.config)
+  camera = trial_camera(world, key)
   background = world.empty_bin(camera)
   if records:
     state = BinState.from_json(records[-1]['state'])
     failures, start_count = records[-1]['consecutive_failures'], records[-1]['objects_at_start']
   else:
-    state = world.fill(jax.random.fold_in(key, 0), protocol.objects_per_trial) if start is None else start
+    state = trial_fill(world, key, protocol.objects_per_trial) if start is None else start
     failures = 0
     start_count = state.count
   memory.validate()
   attempt = len(records)
   stop = stop_reason(state.count, attempt, failures, protocol)
   while stop is None:
-    k_noise, k_plan, k_judge = _attempt_keys(key, attempt)
+    k_noise, k_plan, k_judge = attempt_keys(key, attempt)
     clock = time.perf_counter()
     depth, segmentation = world.observe(k_noise, state, camera)
     stages = {'render': time.perf_counter() - clock}
@@ -200,4 +214,4 @@ def _bin_level(world: PickingWorld, state: BinState) -> int | None:
   return levels.pop() if len(levels) == 1 else None
 
 
-__all__ = ['NO_GRASP', 'Planner', 'run_trial', 'trial_key']
+__all__ = ['NO_GRASP', 'Planner', 'attempt_keys', 'run_trial', 'trial_camera', 'trial_fill', 'trial_key']
