@@ -156,3 +156,26 @@ def test_every_recorded_attempt_replays_to_its_verdicts(reference, tmp_path, cap
     assert replay(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith('error: ') and message in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_runs_settings_come_back_or_are_refused_by_name(reference):
+  """`spec_from_settings` rebuilds the run's spec (nested physics settings included) exactly, and names a setting
+  this version does not know or a value that does not come back."""
+  from dexjax.bench.attempt_replay import spec_from_settings
+  from dexjax.bench.runner import load_benchmark_config
+  settings = json.loads((reference / 'benchmark.json').read_text())
+  config = load_benchmark_config(settings['objects'])
+  spec = spec_from_settings(settings, config)
+  assert json.loads(json.dumps(spec.settings_json())) == settings
+  assert spec.physics.path.motion.lift_height == settings['physics']['path']['motion']['lift_height']
+  unknown = json.loads(json.dumps(settings))
+  unknown['physics']['path']['retreat'] = 0.05
+  with pytest.raises(ValueError, match=r'physics\.path\.retreat: not a setting of this version'):
+    spec_from_settings(unknown, config)
+  with pytest.raises(ValueError, match=r'^config_fingerprint: the run has "0000", these settings give'):
+    spec_from_settings({**settings, 'config_fingerprint': '0000'}, config)
+  with pytest.raises(ValueError, match=r'^config_fingerprint: .*another --config'):
+    spec_from_settings(settings, load_benchmark_config(settings['objects'], noise=False))
+  missing = {k: v for k, v in settings.items() if k != 'cem'}
+  with pytest.raises(ValueError, match="cem: missing from the run's settings"):
+    spec_from_settings(missing, config)

@@ -19,11 +19,9 @@ import dataclasses
 from collections.abc import Callable, Mapping
 from typing import Any
 
-import jax
-
 from dexjax.bench.judges import Judge
 from dexjax.bench.protocol import Protocol
-from dexjax.bench.trial import NO_GRASP, run_trial, trial_key
+from dexjax.bench.trial import NO_GRASP, run_trial, trial_fill, trial_key
 from dexjax.bench.world import PickingWorld
 
 
@@ -106,7 +104,7 @@ def object_pickability(world: PickingWorld, planner: Any, judges: Mapping[str, J
   trials = []
   for d in range(drops):
     trial = object_id * drops + d
-    start = world.fill(jax.random.fold_in(trial_key(seed, trial), 0), 1, object_ids=[object_id])
+    start = trial_fill(world, trial_key(seed, trial), 1, object_ids=[object_id])
     # An object that left the bin as it fell gets no attempt: run_trial stops at once on the empty bin.
     trials.append(run_trial(world, planner, judges, policy=policy, trial=trial, seed=seed, advance_by='physics',
                             protocol=protocol, start=start))

@@ -54,9 +54,11 @@ def trial_camera(world: PickingWorld, key: jax.Array) -> Camera:
   return run_camera(jax.random.fold_in(key, 1), world.config)
 
 
-def trial_fill(world: PickingWorld, key: jax.Array, count: int) -> BinState:
-  """The bin the trial of key ``key`` (`trial_key`) starts from: ``count`` objects dropped and settled."""
-  return world.fill(jax.random.fold_in(key, 0), count)
+def trial_fill(world: PickingWorld, key: jax.Array, count: int,
+               object_ids: Sequence[int] | None = None) -> BinState:
+  """The bin the trial of key ``key`` (`trial_key`) starts from: ``count`` objects (``object_ids``, default drawn
+  from the set) dropped and settled (`PickingWorld.fill`)."""
+  return world.fill(jax.random.fold_in(key, 0), count, object_ids=object_ids)
 
 
 def attempt_keys(key: jax.Array, attempt: int) -> tuple[jax.Array, jax.Array, jax.Array]:
