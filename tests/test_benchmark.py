@@ -176,6 +176,8 @@ def test_a_runs_settings_come_back_or_are_refused_by_name(reference):
     spec_from_settings({**settings, 'config_fingerprint': '0000'}, config)
   with pytest.raises(ValueError, match=r'^config_fingerprint: .*another --config'):
     spec_from_settings(settings, load_benchmark_config(settings['objects'], noise=False))
+  with pytest.raises(ValueError, match='memory: expected an object of settings, got list'):
+    spec_from_settings({**settings, 'memory': [0.0, 5]}, config)
   missing = {k: v for k, v in settings.items() if k != 'cem'}
   with pytest.raises(ValueError, match="cem: missing from the run's settings"):
     spec_from_settings(missing, config)

@@ -40,6 +40,8 @@ from dexjax.render.camera import Camera
 
 def _dataclass_from_json(cls: type, data: Mapping[str, Any], where: str) -> Any:
   """``cls`` (a dataclass whose nested dataclass fields have dataclass defaults) from its `dataclasses.asdict`."""
+  if not isinstance(data, Mapping):
+    raise ValueError(f'{where}: expected an object of settings, got {type(data).__name__}')
   fields = {f.name: f for f in dataclasses.fields(cls)}
   unknown = sorted(set(data) - set(fields))
   if unknown:
