@@ -68,16 +68,18 @@ def main(argv: list[str] | None = None) -> int:
   config = load_benchmark_config(settings['objects'], args.config, args.camera_config, noise=not args.no_noise)
   from dexjax.bench.attempt_replay import (  # pylint: disable=g-import-not-at-top
       recorded_attempt, replay_attempt, spec_from_settings)
+  from dexjax.bench.runner import benchmark_judges  # pylint: disable=g-import-not-at-top
   from dexjax.bench.world import PickingWorld  # pylint: disable=g-import-not-at-top
   spec = spec_from_settings(settings, config)
   attempts = [args.attempt] if args.attempt is not None else sorted(
       r['attempt'] for r in records if r['policy'] == policy and r['trial'] == args.trial)
   rows = []
   with PickingWorld(spec.config, cache_dir=args.cache_dir, grip_decomposition=spec.grip_decomposition) as world:
+    judges = benchmark_judges(world, spec)
     for k in attempts or [0]:
       attempt = recorded_attempt(world, spec, records, policy, args.trial, k)
       recorded = _verdicts(attempt.record['verdicts'])
-      replayed = _verdicts(replay_attempt(world, spec, attempt)) if attempt.action is not None else recorded
+      replayed = _verdicts(replay_attempt(world, spec, attempt, judges)) if attempt.action is not None else recorded
       rows.append({'trial': args.trial, 'attempt': k, 'gripper': attempt.record.get('gripper'),
                    'q': attempt.record.get('q'), 'recorded': recorded, 'replayed': replayed,
                    'reproduced': recorded == replayed})

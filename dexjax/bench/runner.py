@@ -163,14 +163,11 @@ def load_benchmark_config(objects: Sequence[str], config_path: str | None = None
   without ``noise``. Raises ValueError (a bad file or value, named) or OSError (an unreadable file)."""
   from dexjax.config import load_yaml, validate_generate_config  # pylint: disable=g-import-not-at-top
   from dexjax.generate.config import load_generate_config  # pylint: disable=g-import-not-at-top
-  from dexjax.render.noise import SensorNoise  # pylint: disable=g-import-not-at-top
   config = load_generate_config(config_path, camera_config=camera_config, objects=list(objects))
   validate_generate_config(config, config_path or 'the default config')
-  if not noise:
-    return dataclasses.replace(config, noise=SensorNoise())
-  if config_path is not None and 'noise' in (load_yaml(config_path) or {}):
+  if noise and config_path is not None and 'noise' in (load_yaml(config_path) or {}):
     return config
-  return dataclasses.replace(config, noise=benchmark_noise())
+  return benchmark_config(objects, config, noise=noise)
 
 
 def pairs(spec: BenchmarkSpec) -> list[tuple[str, int]]:
