@@ -85,13 +85,13 @@ def test_deployment_yaml_sees_what_the_benchmark_policies_see():
 
 def test_fingerprints_are_known_answers():
   """Known answers: the fingerprints of the defaults and SMALL with labels version 8 (2026-12-07: each object's
-  mass drawn about its own), procedural objects version 5 (2026-12-07: level-2 vessels of plastic or melamine) and
+  mass drawn about its own), procedural objects version 6 (2026-12-07: level-1 flat faces >= 3 cm) and
   the fields ``heap.count_law`` and ``dataset.inpaint_holes`` (2026-12-07); every dataset of an older labels or objects version gets a new
   fingerprint, so none is resumed with other labels or other meshes. The speed-only settling fields never change
   a fingerprint, and sleeping objects do."""
   awake = lambda c: dataclasses.replace(c, settle=c.settle.replace(sleep=False))
-  assert fingerprint(awake(GenerateConfig())) == 'ef923c864b67e6db'
-  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'a13da045c9ed4ff8'
+  assert fingerprint(awake(GenerateConfig())) == '83dba27e0561d5bc'
+  assert fingerprint(config_from_dict(SMALL, 'small.yaml')) == 'e83a21706f5e95b9'
   faster = GenerateConfig().settle.replace(nthread=1, chunk_steps=7)
   assert fingerprint(dataclasses.replace(GenerateConfig(), settle=faster)) == fingerprint(GenerateConfig())
   assert fingerprint(GenerateConfig()) != fingerprint(awake(GenerateConfig()))

@@ -61,12 +61,12 @@ PROCEDURAL_PREFIX: str = 'procedural:'
 PROCEDURAL_LEVELS: tuple[int, ...] = (1, 2, 3)
 """The difficulty levels."""
 
-PROCEDURAL_VERSION: int = 5
+PROCEDURAL_VERSION: int = 6
 """Version of the procedural object sets: a spec names another object when this changes, so a dataset's
 fingerprint (`dexjax.generate.fingerprint`) includes it and no run resumes with other objects. 2: level 1 of
 household size with masses from materials (2026-12-05); 3: level-1 round solids >= 4 cm across (2026-12-06);
 4: level-1 flat faces >= the cup (rounded boxes' flats, prisms of 4 or 6 faces; 2026-12-06); 5: level-2 vessels of
-plastic or melamine instead of porcelain (2026-12-07)."""
+plastic or melamine instead of porcelain (2026-12-07); 6: level-1 flat faces >= 3 cm, 1.5 x the cup (2026-12-07)."""
 
 MAX_RANGE_COUNT: int = 100_000
 """Most objects one procedural range (``'procedural:L1/0:100000'``) or `procedural_specs` call may name: a larger

@@ -14,7 +14,7 @@ tuna can: the cup's). Balls are at least 6 cm across, wider than the jaws open. 
 * ``box``: a box (packaged goods: cracker, sugar, gelatin boxes);
 * ``cylinder``: a cylinder, tall (soup, coffee cans, jars) or squat (a tuna can);
 * ``rounded_box``: a box with rounded edges (soap bars, erasers, sponges), every face's flat at least
-  `LEVEL1_MIN_FACE` (0.02 m, the cup) across;
+  `LEVEL1_MIN_FACE` (0.03 m, 1.5 x the cup) across;
 * ``prism``: an irregular convex quadrilateral or hexagonal prism (toy blocks), every face at least
   `LEVEL1_MIN_FACE` wide (a lying odd prism shows the cup a ridge);
 * ``frustum``: a truncated cone, the top 0.5-0.85 of the base across and at least 4 cm (tubs, cups, cone toys);
@@ -58,10 +58,13 @@ on the side of a thinner one lying down: on Dex-Net 3.0's seal model (`dexjax.co
 the cup vertical on the top line of a lying cylinder strains 0.104 at 3 cm across, 0.070 at 4 cm and 0.054 at
 5 cm (measured 2026-12-06); a cup-only policy could never pick a thinner can lying down."""
 
-LEVEL1_MIN_FACE: float = 0.02
-"""Narrowest flat face of a level-1 box, rounded box or prism, metres: the seed's 20 mm cup across. On Dex-Net
-3.0's seal model (10 % strain) the cup vertical on a 3 cm rounded box, 2 mm off the face's centre, strains 0.01
-with a 2.2 cm flat, 0.08 with 1.4 cm and 0.19 with 0.3 cm (radius 13.5 mm; measured 2026-12-06)."""
+LEVEL1_MIN_FACE: float = 0.03
+"""Narrowest flat face of a level-1 box, rounded box or prism, metres: 1.5 x the seed's 20 mm cup, as
+`LEVEL1_MIN_THICKNESS`, so a cup aimed from a noisy image a few millimetres off a face's centre still has the whole
+lip on the flat. On Dex-Net 3.0's seal model (10 % strain) the cup vertical on a 3 cm rounded box, 2 mm off the
+face's centre, strains 0.01 with a 2.2 cm flat, 0.08 with 1.4 cm and 0.19 with 0.3 cm (radius 13.5 mm; measured
+2026-12-06). With 2 cm (objects version 5) the suction heuristic failed to seal 17 times on level-1 faces 2-3 cm
+wide of `procedural:L1/0:25@77` in five trials (docs/benchmark.md; objects version 6, 2026-12-07)."""
 
 LEVEL1_JAW_WIDTH: float = 0.045
 """Widest dimension across a jaw-friendly level-1 object, metres (the seed's 5 cm jaw opening less 5 mm)."""
@@ -144,12 +147,16 @@ def _build_frustum(p: Params) -> Manifold:
 def prism_outline(sides: int, irregularity: np.ndarray) -> np.ndarray:
   """(sides, 2) vertices of an irregular convex polygon whose bounding box's larger side is 1.
 
+  The vertices sit half a pitch off the x axis (a quadrilateral is a jittered square with its sides along the
+  axes, not a diamond), so its bounding box is as narrow as its faces allow: with 3 cm faces a diamond's box is
+  4.2 cm or more, wider than a jaw-friendly object may be.
+
   Args:
     sides: number of vertices, >= 3.
     irregularity: (>= sides,) angular jitter of each vertex on its circle, in pitches (|jitter| < 0.5 keeps
       the order and convexity).
   """
-  angles = 2 * np.pi * (np.arange(sides) + np.asarray(irregularity)[:sides]) / sides
+  angles = 2 * np.pi * (np.arange(sides) + 0.5 + np.asarray(irregularity)[:sides]) / sides
   points = np.c_[np.cos(angles), np.sin(angles)]
   low, high = points.min(axis=0), points.max(axis=0)
   return (points - 0.5 * (low + high)) / float(np.max(high - low))
