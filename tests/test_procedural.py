@@ -275,7 +275,7 @@ def _facet_widths(mesh, min_area=2e-5):
 
 
 def test_level1_flat_faces_are_wider_than_the_cup():
-  """Rounded boxes keep a flat of >= 2 cm on every face; prisms have 4 or 6 faces around, each >= 2 cm wide (an
+  """Rounded boxes keep a flat of >= 3 cm on every face; prisms have 4 or 6 faces around, each >= 3 cm wide (an
   odd prism lying on a face shows the cup a ridge)."""
   families = procedural_families(1)
   for index in range(120):
