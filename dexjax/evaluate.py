@@ -1,13 +1,14 @@
 """Score trained GQ-CNNs on a generated dataset and print one JSON object.
 
-  python -m dexjax.evaluate --checkpoint CKPT --data DIR [--split all|train|val] [--gripper G] [--batch-size B]
-                            [--intervals object|heap]
+  python -m dexjax.evaluate --checkpoint CKPT --data DIR [DIR ...] [--split all|train|val] [--gripper G]
+                            [--batch-size B] [--intervals object|heap]
 
 CKPT is ``pretrained`` (the models shipped with dexjax, docs/models.md), a training run directory (every gripper
 trained in it), ``RUN/<gripper>``, a saved model directory or a model file (``.msgpack``).
-The data may come from other objects than the training set. ``--split all`` (the default) scores every row;
+The data may come from other objects than the training set; several directories are scored as one union (as
+``python -m dexjax.train --data A B``). ``--split all`` (the default) scores every row;
 ``train`` / ``val`` use the run's split rule (from ``RUN/config.yaml`` when present, else the default). Prints
-``{"checkpoint", "data", "split", "grippers": {gripper: {accuracy, balanced_accuracy, precision, recall,
+``{"checkpoint", "data" (the directory, or the list of them), "split", "grippers": {gripper: {accuracy, balanced_accuracy, precision, recall,
 average_precision, loss, examples, positives, ...}}}``; ``--intervals object`` adds ``intervals``: 95 % bootstrap
 intervals of the balanced accuracy and AP over the dataset's objects (``heap``: its heaps). Exit code 0, or 2 for
 bad input (docs/errors.md).
@@ -29,7 +30,8 @@ def _parser() -> argparse.ArgumentParser:
   p = argparse.ArgumentParser(prog='python -m dexjax.evaluate', description=__doc__.split('\n\n')[0])
   p.add_argument('--checkpoint', required=True, help='pretrained (the shipped models), a run directory, '
                                                      'RUN/<gripper>, a saved model directory or a model file')
-  p.add_argument('--data', required=True, help='dataset directory (python -m dexjax.generate)')
+  p.add_argument('--data', required=True, nargs='+', help='dataset directory (python -m dexjax.generate), or '
+                                                          'several (scored as their union)')
   p.add_argument('--split', choices=('all', 'train', 'val'), default='all', help='rows to score (default all)')
   p.add_argument('--gripper', choices=('parallel_jaw', 'suction'), help='only this gripper (from a run directory)')
   p.add_argument('--batch-size', type=int, default=256, help='crops per forward pass (default 256)')
@@ -67,7 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     raise ValueError(f'--batch-size: expected an integer >= 1, got {args.batch_size}')
   if args.resamples < 1:
     raise ValueError(f'--resamples: expected an integer >= 1, got {args.resamples}')
-  require_shards(args.data)
+  data = args.data[0] if len(args.data) == 1 else list(args.data)
+  require_shards(data)
   config = _run_config(Path(checkpoint)) if checkpoint != PRETRAINED else TrainConfig()
   config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, eval_batch_size=args.batch_size))
   wanted = (args.gripper,) if args.gripper else GRIPPER_NAMES
@@ -78,9 +81,10 @@ def main(argv: list[str] | None = None) -> int:
   if not models:
     raise FileNotFoundError(f'{checkpoint}: no model of gripper {args.gripper!r} '
                             f'(has {held_grippers(checkpoint, found)})')
-  results = {m.gripper: evaluate_model(m, args.data, config, args.split, progress=not args.no_progress,
+  results = {m.gripper: evaluate_model(m, data, config, args.split, progress=not args.no_progress,
                                       interval_by=args.intervals, num_resamples=args.resamples) for m in models}
-  print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': os.fspath(Path(args.data).absolute()),
+  absolute = [os.fspath(Path(d).absolute()) for d in args.data]
+  print(json.dumps({'checkpoint': os.fspath(checkpoint), 'data': absolute[0] if len(absolute) == 1 else absolute,
                     'split': args.split, 'symmetric_views': {m.gripper: m.symmetric_views for m in models},
                     'grippers': results}, indent=1))
   return 0

@@ -227,6 +227,7 @@ def test_training_on_several_datasets_reads_their_union(data, tmp_path, capsys):
   """``--data A B``: one run on both datasets; every row of both is in exactly one split, the summary names both,
   and evaluation with intervals groups heaps per dataset (the two share heap ids)."""
   from dexjax.data import iterate_rows
+  from dexjax.evaluate import main as evaluate_main
   from dexjax.train.__main__ import main as train_main
   other = tmp_path / 'other'
   _write_dataset(other, num_shards=2, images_per_shard=8, seed=1)
@@ -246,6 +247,15 @@ def test_training_on_several_datasets_reads_their_union(data, tmp_path, capsys):
   model = load(out / 'parallel_jaw')
   metrics = evaluate_model(model, [data, other], both, 'val', interval_by='heap', num_resamples=20)
   assert metrics['examples'] == val and metrics['intervals']['by'] == 'heap'
+  # The evaluate CLI scores the same union: ``--data A B`` (the run's split rule, from its config).
+  assert evaluate_main(['--checkpoint', str(out), '--data', str(data), str(other), '--split', 'val',
+                        '--no-progress']) == 0
+  result = json.loads(capsys.readouterr().out)
+  assert result['data'] == [str(data.absolute()), str(other.absolute())]
+  assert result['grippers']['parallel_jaw']['examples'] == val
+  assert result['grippers']['parallel_jaw']['balanced_accuracy'] == pytest.approx(metrics['balanced_accuracy'])
+  assert evaluate_main(['--checkpoint', str(out), '--data', str(data), str(tmp_path / 'none')]) == 2
+  assert f"{tmp_path / 'none'}: no dataset shards" in capsys.readouterr().err
 
 
 def test_configs_and_their_errors(tmp_path):
